@@ -1,0 +1,30 @@
+"""vnl — Virtual Neuroscience Lab: virtual animals trained with RL on MJX.
+
+Public API: `names`, `make`, `load_policy`, `Env`, `State`, `VnlError`.
+
+Attributes are imported on first use, so `import vnl.cli` can choose the OpenGL backend before
+MuJoCo is loaded.
+"""
+
+from typing import Any
+
+from vnl.errors import VnlError
+
+_LAZY = {
+    "Env": ("vnl.envs.base", "Env"),
+    "State": ("vnl.envs.base", "State"),
+    "make": ("vnl.envs.registry", "make"),
+    "names": ("vnl.envs.registry", "names"),
+    "load_policy": ("vnl.policy", "load_policy"),
+}
+
+__all__ = ["Env", "State", "VnlError", "load_policy", "make", "names"]
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        import importlib
+
+        module, attr = _LAZY[name]
+        return getattr(importlib.import_module(module), attr)
+    raise AttributeError(f"module 'vnl' has no attribute {name!r}")

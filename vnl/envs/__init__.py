@@ -1,0 +1,1 @@
+"""Environments: the `Env` base class, `State`, training wrappers and the registry."""

@@ -1,0 +1,144 @@
+"""The environment contract: a static host object plus a pure, jit/vmap-able `State` pytree.
+
+Follows MuJoCo Playground's `MjxEnv`: `reset(rng) -> State`, `step(state, action) -> State`.
+The model is compiled once on the host in `__init__`; nothing inside `reset`/`step` has Python
+side effects, so both can be jitted, vmapped and scanned.
+"""
+
+from __future__ import annotations
+
+import abc
+import functools
+from typing import Any
+
+import jax
+import jax.numpy as jp
+import mujoco
+from flax import struct
+from mujoco import mjx
+
+Observation = jax.Array | dict[str, jax.Array]
+
+
+@struct.dataclass
+class State:
+    """One environment's state (add leading batch axes with vmap).
+
+    Attributes:
+      data: MJX physics state.
+      obs: observation, shape (observation_size,) (or a dict of arrays for pixel envs).
+      reward: scalar float32.
+      done: scalar float32, 1.0 when the episode ended at this step.
+      metrics: scalar float32 per named metric (reward terms as `reward/<term>`).
+      info: task bookkeeping carried between steps (rng, last action, ...).
+    """
+
+    data: mjx.Data
+    obs: Observation
+    reward: jax.Array
+    done: jax.Array
+    metrics: dict[str, jax.Array] = struct.field(default_factory=dict)
+    info: dict[str, Any] = struct.field(default_factory=dict)
+
+
+class Env(abc.ABC):
+    """Base class: owns the compiled `mujoco.MjModel` and its `mjx.Model`.
+
+    Subclasses implement `reset` and `step`; they call `physics_step` to advance the physics
+    (`n_substeps` calls of `mjx.step` per control step) with the NaN guard.
+    """
+
+    def __init__(self, config: Any, mj_model: mujoco.MjModel, n_substeps: int) -> None:
+        self._config = config
+        self._mj_model = mj_model
+        self._mjx_model = mjx.put_model(mj_model)
+        self._n_substeps = int(n_substeps)
+        ctrlrange = mj_model.actuator_ctrlrange.astype("float32")
+        limited = mj_model.actuator_ctrllimited.astype(bool)
+        self._ctrl_lo = jp.where(limited, ctrlrange[:, 0], -jp.inf)
+        self._ctrl_hi = jp.where(limited, ctrlrange[:, 1], jp.inf)
+
+    # --- the contract -----------------------------------------------------------------------
+    @abc.abstractmethod
+    def reset(self, rng: jax.Array) -> State:
+        """New episode from `rng` (a PRNG key, shape (2,))."""
+
+    @abc.abstractmethod
+    def step(self, state: State, action: jax.Array) -> State:
+        """Advances one control step; `action` has shape (action_size,), nominally in [-1, 1]."""
+
+    # --- properties -------------------------------------------------------------------------
+    @property
+    def config(self) -> Any:
+        """The frozen task config this env was built from."""
+        return self._config
+
+    @property
+    def mj_model(self) -> mujoco.MjModel:
+        return self._mj_model
+
+    @property
+    def mjx_model(self) -> mjx.Model:
+        return self._mjx_model
+
+    @property
+    def dt(self) -> float:
+        """Control time step in seconds (physics timestep × substeps)."""
+        return float(self._mj_model.opt.timestep) * self._n_substeps
+
+    @property
+    def n_substeps(self) -> int:
+        return self._n_substeps
+
+    @property
+    def action_size(self) -> int:
+        return int(self._mj_model.nu)
+
+    @functools.cached_property
+    def observation_shape(self) -> Any:
+        """Shape(s) of `obs`, from `jax.eval_shape` (no compile)."""
+        state = jax.eval_shape(self.reset, jax.ShapeDtypeStruct((2,), jp.uint32))
+        return jax.tree.map(lambda x: x.shape, state.obs)
+
+    @property
+    def observation_size(self) -> Any:
+        """Flat observation width (or a dict of shapes for dict observations)."""
+        shape = self.observation_shape
+        if isinstance(shape, dict):
+            return shape
+        return shape[-1]
+
+    @property
+    def unwrapped(self) -> Env:
+        return self
+
+    @property
+    def backend(self) -> str:
+        return "mjx"
+
+    # --- helpers for subclasses --------------------------------------------------------------
+    def sanitize_action(self, action: jax.Array) -> jax.Array:
+        """NaN -> 0 and clip to the actuators' control range, so bad actions never reach physics."""
+        action = jp.nan_to_num(action, nan=0.0, posinf=0.0, neginf=0.0)
+        return jp.clip(action, self._ctrl_lo, self._ctrl_hi)
+
+    def physics_step(self, data: mjx.Data, ctrl: jax.Array) -> tuple[mjx.Data, jax.Array]:
+        """`n_substeps` physics steps with `ctrl`; returns (data, blew_up).
+
+        If the new state has a NaN/Inf in qpos, qvel or qacc, the previous (finite) data is
+        returned with `blew_up=1.0`; callers end the episode, so the bad state never reaches
+        observations, rewards or gradients.
+        """
+        data0 = data.replace(ctrl=ctrl)
+
+        def body(d: mjx.Data, _: Any) -> tuple[mjx.Data, None]:
+            return mjx.step(self._mjx_model, d), None
+
+        data1, _ = jax.lax.scan(body, data0, None, length=self._n_substeps)
+        finite = (
+            jp.isfinite(data1.qpos).all()
+            & jp.isfinite(data1.qvel).all()
+            & jp.isfinite(data1.qacc).all()
+        )
+        data_out = jax.tree.map(lambda new, old: jp.where(finite, new, old), data1, data0)
+        return data_out, 1.0 - finite.astype(jp.float32)

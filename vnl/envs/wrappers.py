@@ -1,0 +1,59 @@
+"""Wrapping an `Env` for Brax's PPO: batch, episode bookkeeping, auto-reset.
+
+Brax's `VmapWrapper` and `EpisodeWrapper` work on our `State` as they are. Brax's own
+`AutoResetWrapper` swaps in `state.pipeline_state`, which our `State` calls `data` (as MuJoCo
+Playground does), so we provide the auto-reset that resets `data`.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable
+
+import jax
+import jax.numpy as jp
+from brax.envs.wrappers import training as brax_training
+
+from vnl.envs.base import State
+
+
+class AutoResetWrapper(brax_training.Wrapper):
+    """Resets finished episodes to their first state (the state drawn at `reset`)."""
+
+    def reset(self, rng: jax.Array) -> State:
+        state = self.env.reset(rng)
+        state.info["first_data"] = state.data
+        state.info["first_obs"] = state.obs
+        return state
+
+    def step(self, state: State, action: jax.Array) -> State:
+        if "steps" in state.info:
+            steps = jp.where(state.done, jp.zeros_like(state.info["steps"]), state.info["steps"])
+            state.info.update(steps=steps)
+        state = state.replace(done=jp.zeros_like(state.done))
+        state = self.env.step(state, action)
+
+        def where_done(first: jax.Array, current: jax.Array) -> jax.Array:
+            done = state.done
+            if done.shape and done.shape[0] != first.shape[0]:
+                return current
+            if done.shape:
+                done = jp.reshape(done, [first.shape[0]] + [1] * (first.ndim - 1))
+            return jp.where(done, first, current)
+
+        data = jax.tree.map(where_done, state.info["first_data"], state.data)
+        obs = jax.tree.map(where_done, state.info["first_obs"], state.obs)
+        return state.replace(data=data, obs=obs)
+
+
+def wrap_for_training(
+    env: Any,
+    episode_length: int = 1000,
+    action_repeat: int = 1,
+    randomization_fn: Callable[..., Any] | None = None,
+) -> brax_training.Wrapper:
+    """Vmap + episode limit + auto-reset; the `wrap_env_fn` hook of `brax...ppo.train`."""
+    if randomization_fn is not None:
+        raise NotImplementedError("domain randomization is not supported yet")
+    env = brax_training.VmapWrapper(env)
+    env = brax_training.EpisodeWrapper(env, episode_length, action_repeat)
+    return AutoResetWrapper(env)

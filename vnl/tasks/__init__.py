@@ -1,0 +1,1 @@
+"""Tasks: one file per task, each with a frozen config dataclass and an `Env` subclass."""

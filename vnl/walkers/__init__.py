@@ -1,0 +1,1 @@
+"""Walkers (animal bodies) as PyMJCF models built from their upstream sources."""
