@@ -1,0 +1,275 @@
+"""`vnl` command line: list | train | eval | render.
+
+The only module that parses flags or sets process-wide state (OpenGL backend, warning filters).
+User mistakes print one line `vnl: error: ...` and exit with code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ctypes.util
+import json
+import os
+import sys
+import warnings
+from pathlib import Path
+from typing import Any, Sequence
+
+
+def _configure_process() -> str | None:
+    """Picks a headless OpenGL backend for MuJoCo (must run before mujoco is imported).
+
+    Returns the backend, or None when none is installed (training works; video is skipped).
+    """
+    gl = os.environ.get("MUJOCO_GL")
+    if not gl:
+        if ctypes.util.find_library("EGL"):
+            gl = "egl"
+        elif ctypes.util.find_library("OSMesa"):
+            gl = "osmesa"
+        if gl:
+            os.environ["MUJOCO_GL"] = gl
+    # Third-party deprecation chatter (jaxopt, brax's use of jax APIs) is not actionable here.
+    warnings.filterwarnings("ignore", category=DeprecationWarning)
+    warnings.filterwarnings("ignore", message=".*DISPLAY.*")
+    import contextlib
+    import io
+    import logging
+
+    logging.getLogger("absl").setLevel(logging.ERROR)
+    # mujoco.mjx prints "Failed to import warp" at import when the (GPU-only) Warp backend is not
+    # installed; that is expected here, so the first import happens with stdout captured.
+    with contextlib.redirect_stdout(io.StringIO()):
+        import mujoco.mjx  # noqa: F401
+    return gl
+
+
+def _say(text: str) -> None:
+    print(text, flush=True)
+
+
+def _no_gl_line() -> str:
+    return ("[vnl] video skipped: no OpenGL found. Install EGL or OSMesa (Debian: apt-get install "
+            "libegl1 libgl1-mesa-dri libosmesa6) or set MUJOCO_GL=egl|osmesa")
+
+
+# --- commands ---------------------------------------------------------------------------------
+def cmd_list(args: argparse.Namespace) -> int:
+    from vnl.envs import registry
+    from vnl.tasks import run
+
+    rows = []
+    for name in registry.names():
+        env = registry.make(name)
+        rows.append((name, env.observation_size, env.action_size, registry.entry(name).description))
+        if args.verbose:
+            rows.append(env)
+    width = max(len(r[0]) for r in rows if isinstance(r, tuple))
+    print(f"{'name':<{width}}  {'obs':>5}  {'act':>4}  description")
+    for row in rows:
+        if isinstance(row, tuple):
+            name, obs, act, desc = row
+            print(f"{name:<{width}}  {obs!s:>5}  {act:>4}  {desc}")
+        else:
+            env = row
+            layout = ", ".join(f"{n} ({w})" for n, w in run.observation_layout(env))
+            print(f"{'':<{width}}  observation: {layout}")
+            print(f"{'':<{width}}  control dt {env.dt:.3f} s, episode {env.config.episode_length}"
+                  f" steps; cameras: {', '.join(_cameras(env))}")
+    return 0
+
+
+def _cameras(env: Any) -> list[str]:
+    from vnl.io import video
+
+    return video.camera_names(env.mj_model)
+
+
+def cmd_train(args: argparse.Namespace, gl: str | None) -> int:
+    import time
+
+    from vnl import config as config_lib
+    from vnl.io import metrics as metrics_io, plot
+    from vnl.train import config as train_config, ppo
+
+    file_values = config_lib.load_yaml(args.config) if args.config else {}
+    flags: dict[str, Any] = {}
+    if args.steps is not None:
+        flags.setdefault("ppo", {})["num_timesteps"] = args.steps
+    if args.num_envs is not None:
+        flags.setdefault("ppo", {})["num_envs"] = args.num_envs
+    if args.seed is not None:
+        flags["seed"] = args.seed
+    if args.no_video:
+        flags.setdefault("log", {})["video"] = False
+    config = train_config.build(args.env, args.preset, file_values, args.set, flags)
+    if config.log.video:
+        # An unknown camera is an error now, not after training.
+        from vnl.envs import registry
+        from vnl.io import video
+
+        video.resolve_camera(registry.make(config.env, **config.env_config).mj_model,
+                             config.log.video_camera)
+    out = Path(args.out) if args.out else Path("runs") / f"{config.env}-{time.strftime('%Y%m%d-%H%M%S')}"
+    result = ppo.train(config, out, say=_say)
+    records = metrics_io.read(out / "metrics.jsonl")
+    if records:
+        plot.learning_curve(records, out / "learning_curve.png", title=f"{config.env} ({config.preset})")
+        first, last = records[0], records[-1]
+        vx = last.get("eval/mean_forward_velocity")
+        _say(f"[vnl] eval reward {first.get('eval/episode_reward', float('nan')):.1f} (untrained) -> "
+             f"{last.get('eval/episode_reward', float('nan')):.1f} at step {last['step']:,}"
+             + (f"; mean forward velocity {vx:.2f} m/s" if vx is not None else "")
+             + f"; {result.wall_time / 60:.1f} min")
+    if config.log.video and not result.interrupted:
+        _final_video(out, config, gl)
+    _say(f"[vnl] run directory: {out}")
+    return 130 if result.interrupted else 0
+
+
+def _final_video(out: Path, config: Any, gl: str | None) -> None:
+    from vnl.errors import VnlError
+    from vnl.policy import load_run
+    from vnl.rollout import policy_video
+
+    if not gl:
+        _say(_no_gl_line())
+        return
+    run = load_run(out)
+    steps = int(round(config.log.video_seconds / run.env.dt))
+    try:
+        path, n = policy_video(run.env, run.policy, str(out / "final_policy.mp4"),
+                               config.log.video_camera, steps, config.log.video_width,
+                               config.log.video_height)
+    except VnlError as e:
+        _say(f"[vnl] video skipped: {e}")
+        return
+    _say(f"[vnl] video of the final policy ({n} frames): {path}")
+
+
+def cmd_eval(args: argparse.Namespace) -> int:
+    import jax
+
+    from vnl.policy import load_run
+    from vnl.rollout import rollout, summarize
+
+    if args.episodes < 1:
+        from vnl.errors import VnlError
+
+        raise VnlError(f"--episodes must be >= 1, got {args.episodes}")
+    run = load_run(args.run_dir, step=args.step)
+    steps = args.steps or run.config.episode_length()
+    r = rollout(run.env, run.policy, jax.random.PRNGKey(args.seed), args.episodes, steps)
+    summary = {"run_dir": str(run.run_dir), "env": run.config.env, "checkpoint_step": run.step,
+               "max_steps": steps, **summarize(r, run.env.dt)}
+    out = Path(args.out) if args.out else run.run_dir / "eval.json"
+    out.write_text(json.dumps(summary, indent=2))
+    print(f"{run.config.env} @ step {run.step:,}: {args.episodes} episodes of up to {steps} steps")
+    print(f"{'quantity':<28} {'mean':>12} {'std':>12}")
+    for k, v in summary.items():
+        if isinstance(v, dict):
+            print(f"{k:<28} {v['mean']:>12.3f} {v['std']:>12.3f}")
+    print(f"written to {out}")
+    return 0
+
+
+def cmd_render(args: argparse.Namespace, gl: str | None) -> int:
+    from vnl.errors import VnlError
+
+    if args.list_cameras:
+        if args.run_dir:
+            from vnl.policy import read_config
+            from vnl.envs import registry
+
+            config = read_config(args.run_dir)
+            env = registry.entry(config.env).factory(config.resolved_env_config())
+        else:
+            from vnl.envs import registry
+
+            env = registry.make(args.env or "ant_run")
+        print("\n".join(_cameras(env)))
+        return 0
+    if not args.run_dir:
+        raise VnlError("vnl render needs a RUN_DIR (or --list-cameras)")
+    if not gl:
+        raise VnlError(_no_gl_line().replace("[vnl] video skipped: ", ""))
+    from vnl.policy import load_run
+    from vnl.rollout import policy_video
+
+    run = load_run(args.run_dir, step=args.step)
+    from vnl.io import video
+
+    video.resolve_camera(run.env.mj_model, args.camera)
+    name = f"render_{args.camera or 'side'}.mp4".replace("/", "_")
+    out = args.out or str(run.run_dir / name)
+    path, n = policy_video(run.env, run.policy, out, args.camera, args.steps, args.width,
+                           args.height, args.seed)
+    print(f"wrote {n} frames to {path}")
+    return 0
+
+
+# --- parser -----------------------------------------------------------------------------------
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="vnl", description="Virtual Neuroscience Lab")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("list", help="list environments")
+    p.add_argument("--verbose", "-v", action="store_true", help="observation layout and cameras")
+
+    p = sub.add_parser("train", help="train with Brax PPO")
+    p.add_argument("env", help="environment name (see `vnl list`)")
+    p.add_argument("--config", help="YAML file with config values")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a config value, e.g. --set ppo.learning_rate=1e-3 (repeatable)")
+    p.add_argument("--preset", help="cpu | gpu | tiny (default: cpu without an accelerator)")
+    p.add_argument("--out", help="run directory (default runs/<env>-<timestamp>)")
+    p.add_argument("--seed", type=int)
+    p.add_argument("--steps", type=int, help="total environment steps (ppo.num_timesteps)")
+    p.add_argument("--num-envs", type=int, help="parallel environments (ppo.num_envs)")
+    p.add_argument("--no-video", action="store_true", help="skip the final-policy video")
+
+    p = sub.add_parser("eval", help="evaluate a trained run")
+    p.add_argument("run_dir")
+    p.add_argument("--episodes", type=int, default=16)
+    p.add_argument("--steps", type=int, help="max steps per episode (default: episode length)")
+    p.add_argument("--step", type=int, help="checkpoint step (default: newest)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", help="JSON file (default <run_dir>/eval.json)")
+
+    p = sub.add_parser("render", help="video of a trained policy")
+    p.add_argument("run_dir", nargs="?")
+    p.add_argument("--camera", help="camera name (see --list-cameras); default: side")
+    p.add_argument("--out", help=".mp4 path (default <run_dir>/render_<camera>.mp4)")
+    p.add_argument("--steps", type=int, help="control steps (default: 10 s)")
+    p.add_argument("--step", type=int, help="checkpoint step (default: newest)")
+    p.add_argument("--width", type=int, default=480)
+    p.add_argument("--height", type=int, default=360)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--list-cameras", action="store_true", help="list the model's named cameras")
+    p.add_argument("--env", help="with --list-cameras and no RUN_DIR: the environment")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    gl = _configure_process()
+    from vnl.errors import VnlError
+
+    try:
+        if args.command == "list":
+            return cmd_list(args)
+        if args.command == "train":
+            return cmd_train(args, gl)
+        if args.command == "eval":
+            return cmd_eval(args)
+        return cmd_render(args, gl)
+    except VnlError as e:
+        print(f"vnl: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("vnl: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

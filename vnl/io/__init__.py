@@ -1,0 +1,1 @@
+"""Run-directory I/O: checkpoints, metrics, plots, videos."""

@@ -1,0 +1,86 @@
+"""Headless video of a trajectory with MuJoCo's renderer (OpenGL via EGL or OSMesa on CPU)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Sequence
+
+import mujoco
+import numpy as np
+
+from vnl.errors import VnlError
+
+
+def camera_names(model: mujoco.MjModel) -> list[str]:
+    """Named cameras of `model` (usable with `--camera`)."""
+    return [model.camera(i).name for i in range(model.ncam) if model.camera(i).name]
+
+
+def resolve_camera(model: mujoco.MjModel, camera: str | None) -> int:
+    """Camera id for `camera`; accepts `walker/<name>` or `<name>`. None: the default camera.
+
+    The default is `side` (a tracking camera every walker gets), else -1 (MuJoCo's free camera).
+    """
+    names = camera_names(model)
+    if camera is None:
+        for default in ("side", "walker/side"):
+            i = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, default)
+            if i >= 0:
+                return i
+        return -1
+    for candidate in (camera, f"walker/{camera}"):
+        i = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, candidate)
+        if i >= 0:
+            return i
+    raise VnlError(f"unknown camera {camera!r}; cameras of this model: {', '.join(names)}")
+
+
+def render_frames(
+    model: mujoco.MjModel,
+    qpos: np.ndarray,
+    camera: str | None = None,
+    width: int = 480,
+    height: int = 360,
+) -> np.ndarray:
+    """Renders one frame per row of `qpos` (shape (T, nq)); returns uint8 (T, height, width, 3).
+
+    Raises `VnlError` with the fix when no OpenGL context can be made.
+    """
+    cam = resolve_camera(model, camera)
+    model.vis.global_.offwidth = max(model.vis.global_.offwidth, width)
+    model.vis.global_.offheight = max(model.vis.global_.offheight, height)
+    try:
+        renderer = mujoco.Renderer(model, height=height, width=width)
+    except Exception as e:  # noqa: BLE001 - every GL failure means the same fix
+        raise VnlError(
+            f"cannot render video: no OpenGL ({type(e).__name__}: {str(e).splitlines()[0]}). "
+            "Install EGL or OSMesa (Debian: apt-get install libegl1 libgl1-mesa-dri libosmesa6) "
+            "and set MUJOCO_GL=egl or MUJOCO_GL=osmesa"
+        ) from None
+    data = mujoco.MjData(model)
+    frames = np.empty((len(qpos), height, width, 3), dtype=np.uint8)
+    try:
+        for t, q in enumerate(qpos):
+            data.qpos[:] = q
+            mujoco.mj_forward(model, data)
+            renderer.update_scene(data, camera=cam)
+            frames[t] = renderer.render()
+    finally:
+        renderer.close()
+    return frames
+
+
+def write_mp4(frames: Sequence[np.ndarray] | np.ndarray, path: str | Path, fps: float) -> Path:
+    """Writes uint8 frames (T, H, W, 3) as an H.264 .mp4 (ffmpeg from imageio-ffmpeg)."""
+    import shutil
+
+    import imageio_ffmpeg
+    import mediapy
+
+    if shutil.which("ffmpeg") is None:  # use the ffmpeg binary shipped by imageio-ffmpeg
+        mediapy.set_ffmpeg(imageio_ffmpeg.get_ffmpeg_exe())
+    path = Path(path)
+    tmp = path.with_name(path.stem + ".tmp" + path.suffix)
+    mediapy.write_video(str(tmp), np.asarray(frames), fps=fps)
+    tmp.replace(path)
+    return path

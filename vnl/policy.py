@@ -1,0 +1,93 @@
+"""Loading a trained run: its config, env and policy."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any, Callable
+
+import jax
+
+from vnl import config as config_lib
+from vnl.envs.base import Env
+from vnl.errors import VnlError
+from vnl.io import checkpoint
+from vnl.train.config import TrainConfig
+
+Policy = Callable[[jax.Array, jax.Array], jax.Array]
+
+
+@dataclasses.dataclass
+class LoadedRun:
+    """A run directory read back: its config, a fresh env, the policy and its checkpoint step."""
+
+    run_dir: Path
+    config: TrainConfig
+    env: Env
+    policy: Policy
+    step: int
+    params: Any
+
+
+def read_config(run_dir: str | Path) -> TrainConfig:
+    """The TrainConfig saved in `<run_dir>/config.yaml`."""
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise VnlError(f"run directory not found: {run_dir}")
+    path = run_dir / "config.yaml"
+    if not path.is_file():
+        raise VnlError(f"{run_dir} is not a vnl run directory (no config.yaml)")
+    return config_lib.from_dict(TrainConfig, config_lib.load_yaml(str(path)))
+
+
+def make_policy_fn(config: TrainConfig, env: Env, params: Any, deterministic: bool) -> Policy:
+    """`policy(obs, rng) -> action` from Brax PPO params, with the run's network sizes."""
+    from brax.training.acme import running_statistics
+    from brax.training.agents.ppo import networks as ppo_networks
+
+    from vnl.train.ppo import network_factory
+
+    normalize = (running_statistics.normalize if config.ppo.normalize_observations
+                 else (lambda x, y: x))
+    network = network_factory(config.network)(
+        env.observation_size, env.action_size, preprocess_observations_fn=normalize
+    )
+    inference = ppo_networks.make_inference_fn(network)(params, deterministic=deterministic)
+
+    def policy(obs: jax.Array, rng: jax.Array) -> jax.Array:
+        """obs: (..., observation_size) -> action (..., action_size) in [-1, 1]."""
+        action, _ = inference(obs, rng)
+        return action
+
+    return policy
+
+
+def load_run(run_dir: str | Path, deterministic: bool = True, step: int | None = None) -> LoadedRun:
+    """Reads config.yaml and the newest readable (or the given) checkpoint of `run_dir`."""
+    from vnl.envs import registry
+
+    config = read_config(run_dir)
+    loaded_step, params = checkpoint.load(run_dir, step)
+    env = registry.entry(config.env).factory(config.resolved_env_config())
+    expected = env.observation_size
+    got = params[0].mean.shape[-1] if config.ppo.normalize_observations else expected
+    if got != expected:
+        raise VnlError(
+            f"checkpoint of {run_dir} expects observations of width {got}, but {config.env} "
+            f"now has {expected}; was the environment changed since the run?"
+        )
+    policy = make_policy_fn(config, env, params, deterministic)
+    return LoadedRun(Path(run_dir), config, env, policy, loaded_step, params)
+
+
+def load_policy(run_dir: str | Path, deterministic: bool = True, step: int | None = None) -> Policy:
+    """The policy of a trained run: `policy(obs, rng) -> action`.
+
+    Args:
+      run_dir: a directory written by `vnl train`.
+      deterministic: the mean action (True) or a sample from the policy distribution.
+      step: a checkpoint step; None takes the newest readable checkpoint.
+
+    Works for runs with any network sizes: they are read from the run's config.yaml.
+    """
+    return load_run(run_dir, deterministic, step).policy

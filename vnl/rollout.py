@@ -1,0 +1,128 @@
+"""Batched rollouts of a policy in an env (for eval, render and videos)."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import jax
+import jax.numpy as jp
+import numpy as np
+
+from vnl.envs.base import Env
+from vnl.policy import Policy
+
+
+@dataclasses.dataclass
+class Rollout:
+    """Arrays from `rollout`, with E episodes and T steps.
+
+    Attributes:
+      qpos: (E, T + 1, nq) positions, starting with the reset state.
+      reward: (E, T) rewards. done: (E, T) 1.0 where the episode ended.
+      active: (E, T) 1.0 for steps up to and including the episode's end.
+      metrics: name -> (E, T) per-step metrics.
+      metrics0: name -> (E,) metrics of the reset states.
+    """
+
+    qpos: np.ndarray
+    reward: np.ndarray
+    done: np.ndarray
+    active: np.ndarray
+    metrics: dict[str, np.ndarray]
+    metrics0: dict[str, np.ndarray]
+
+    @property
+    def lengths(self) -> np.ndarray:
+        """(E,) episode lengths in steps."""
+        return self.active.sum(axis=1)
+
+
+def rollout(env: Env, policy: Policy, rng: jax.Array, episodes: int, steps: int) -> Rollout:
+    """Runs `episodes` episodes in parallel for `steps` control steps (no auto-reset)."""
+
+    @jax.jit
+    def run(rng: jax.Array) -> Any:
+        k_reset, k_act = jax.random.split(rng)
+        state = jax.vmap(env.reset)(jax.random.split(k_reset, episodes))
+
+        def body(carry: Any, key: jax.Array) -> Any:
+            state, alive = carry
+            action = policy(state.obs, key)
+            nxt = jax.vmap(env.step)(state, action)
+            active = alive
+            alive = alive * (1.0 - nxt.done)
+            out = (nxt.data.qpos, nxt.reward, nxt.done, active, nxt.metrics)
+            return (nxt, alive), out
+
+        keys = jax.random.split(k_act, steps)
+        (_, _), (qpos, reward, done, active, metrics) = jax.lax.scan(
+            body, (state, jp.ones((episodes,))), keys
+        )
+        return state.data.qpos, state.metrics, qpos, reward, done, active, metrics
+
+    qpos0, metrics0, qpos, reward, done, active, metrics = jax.device_get(run(rng))
+    to_et = lambda x: np.swapaxes(np.asarray(x), 0, 1)  # (T, E, ...) -> (E, T, ...)
+    return Rollout(
+        qpos=np.concatenate([np.asarray(qpos0)[:, None], to_et(qpos)], axis=1),
+        reward=to_et(reward),
+        done=to_et(done),
+        active=to_et(active),
+        metrics={k: to_et(v) for k, v in metrics.items()},
+        metrics0={k: np.asarray(v) for k, v in metrics0.items()},
+    )
+
+
+def summarize(r: Rollout, dt: float) -> dict[str, Any]:
+    """Per-episode statistics (mean and std over episodes) of a rollout.
+
+    Sums (reward and each `reward/<term>`) run over each episode's active steps; forward distance
+    is the root's x displacement from reset to the episode's last active step; mean forward
+    velocity is that distance over the episode's duration.
+    """
+    mask = r.active
+    lengths = r.lengths
+    per_episode: dict[str, np.ndarray] = {
+        "episode_reward": (r.reward * mask).sum(1),
+        "episode_length": lengths,
+    }
+    for k, v in r.metrics.items():
+        if k.startswith("reward/"):
+            per_episode[f"episode_{k}"] = (v * mask).sum(1)
+    if "x_position" in r.metrics and "x_position" in r.metrics0:
+        last = np.maximum(lengths.astype(int) - 1, 0)
+        x_end = r.metrics["x_position"][np.arange(len(last)), last]
+        distance = x_end - r.metrics0["x_position"]
+        per_episode["forward_distance"] = distance
+        per_episode["mean_forward_velocity"] = distance / np.maximum(lengths * dt, 1e-9)
+    if "physics_nan" in r.metrics:
+        per_episode["physics_nan"] = (r.metrics["physics_nan"] * mask).sum(1)
+    out: dict[str, Any] = {"episodes": int(len(lengths))}
+    for k, v in per_episode.items():
+        out[k] = {"mean": float(np.mean(v)), "std": float(np.std(v))}
+    return out
+
+
+def policy_video(
+    env: Env,
+    policy: Policy,
+    path: str,
+    camera: str | None = None,
+    steps: int | None = None,
+    width: int = 480,
+    height: int = 360,
+    seed: int = 0,
+) -> tuple[str, int]:
+    """Renders one episode of `policy` (until it ends or `steps`) to an .mp4; returns (path, frames).
+
+    Raises `VnlError` for an unknown camera (before rolling out) or when OpenGL is unavailable.
+    """
+    from vnl.io import video
+
+    video.resolve_camera(env.mj_model, camera)
+    steps = steps or int(round(10.0 / env.dt))
+    r = rollout(env, policy, jax.random.PRNGKey(seed), episodes=1, steps=steps)
+    n = int(r.lengths[0]) + 1  # the reset frame plus every active step
+    frames = video.render_frames(env.mj_model, r.qpos[0, :n], camera, width, height)
+    video.write_mp4(frames, path, fps=1.0 / env.dt)
+    return str(path), n

@@ -1,0 +1,1 @@
+"""Training: typed configs and presets, and the Brax PPO adapter."""

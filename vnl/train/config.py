@@ -1,0 +1,222 @@
+"""The one typed, frozen training config, its presets, and how YAML/`--set`/flags combine.
+
+Precedence (later wins): preset < YAML file < `--set key=value` < plain flags (`--steps`, ...).
+Everything is validated before the environment is compiled.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Literal
+
+from vnl import config as config_lib
+from vnl.envs import registry
+from vnl.errors import VnlError
+
+
+@dataclasses.dataclass(frozen=True)
+class PPOConfig:
+    """Brax PPO hyperparameters (names as in `brax.training.agents.ppo.train`).
+
+    One training step collects `batch_size * num_minibatches` trajectories of `unroll_length`
+    steps from `num_envs` parallel environments.
+    """
+
+    num_timesteps: int = 1_000_000
+    num_envs: int = 256
+    batch_size: int = 256
+    num_minibatches: int = 8
+    num_updates_per_batch: int = 4
+    unroll_length: int = 10
+    learning_rate: float = 3e-4
+    entropy_cost: float = 1e-2
+    discounting: float = 0.97
+    gae_lambda: float = 0.95
+    clipping_epsilon: float = 0.3
+    reward_scaling: float = 10.0
+    normalize_observations: bool = True
+    max_grad_norm: float | None = None
+    action_repeat: int = 1
+    num_evals: int = 7
+    num_eval_envs: int = 64
+    deterministic_eval: bool = True
+    episode_length: int | None = None  # None: the env's own `episode_length`
+
+    def validate(self) -> None:
+        positive = ("num_timesteps", "num_envs", "batch_size", "num_minibatches",
+                    "num_updates_per_batch", "unroll_length", "action_repeat", "num_evals",
+                    "num_eval_envs")
+        for key in positive:
+            if getattr(self, key) < 1:
+                raise VnlError(f"{key} must be >= 1, got {getattr(self, key)}")
+        for key in ("learning_rate", "reward_scaling"):
+            if not getattr(self, key) > 0:
+                raise VnlError(f"{key} must be > 0, got {getattr(self, key)}")
+        if self.entropy_cost < 0:
+            raise VnlError(f"entropy_cost must be >= 0, got {self.entropy_cost}")
+        for key in ("discounting", "gae_lambda"):
+            if not 0 < getattr(self, key) <= 1:
+                raise VnlError(f"{key} must be in (0, 1], got {getattr(self, key)}")
+        if (self.batch_size * self.num_minibatches) % self.num_envs:
+            raise VnlError(
+                f"batch_size × num_minibatches ({self.batch_size} × {self.num_minibatches} = "
+                f"{self.batch_size * self.num_minibatches}) must be a multiple of num_envs "
+                f"({self.num_envs}); e.g. set num_envs to {self.batch_size} or change batch_size"
+            )
+        if self.episode_length is not None and self.episode_length < 1:
+            raise VnlError(f"episode_length must be >= 1, got {self.episode_length}")
+        if self.max_grad_norm is not None and self.max_grad_norm <= 0:
+            raise VnlError(f"max_grad_norm must be > 0, got {self.max_grad_norm}")
+
+    @property
+    def env_steps_per_training_step(self) -> int:
+        return self.batch_size * self.num_minibatches * self.unroll_length * self.action_repeat
+
+
+@dataclasses.dataclass(frozen=True)
+class NetworkConfig:
+    """MLP sizes of Brax's PPO policy and value networks."""
+
+    policy_hidden_layer_sizes: tuple[int, ...] = (32, 32, 32, 32)
+    value_hidden_layer_sizes: tuple[int, ...] = (256, 256, 256, 256, 256)
+    activation: Literal["swish", "relu", "tanh", "elu"] = "swish"
+
+    def validate(self) -> None:
+        for key in ("policy_hidden_layer_sizes", "value_hidden_layer_sizes"):
+            sizes = getattr(self, key)
+            if not sizes or any(s < 1 for s in sizes):
+                raise VnlError(f"{key} must be a non-empty list of positive sizes, got {list(sizes)}")
+
+
+@dataclasses.dataclass(frozen=True)
+class LogConfig:
+    """What a run writes besides metrics.jsonl."""
+
+    checkpoint_every: int = 1  # write a checkpoint every N evaluations
+    keep_checkpoints: int = 5  # newest N kept; 0 keeps all
+    video: bool = True  # an .mp4 of the final policy
+    video_camera: str | None = None  # None: the env's default tracking camera
+    video_seconds: float = 10.0
+    video_width: int = 480
+    video_height: int = 360
+    progress: bool = True  # a progress line on the terminal
+
+    def validate(self) -> None:
+        if self.checkpoint_every < 1:
+            raise VnlError(f"checkpoint_every must be >= 1, got {self.checkpoint_every}")
+        if self.keep_checkpoints < 0:
+            raise VnlError(f"keep_checkpoints must be >= 0, got {self.keep_checkpoints}")
+        if self.video_seconds <= 0:
+            raise VnlError(f"video_seconds must be > 0, got {self.video_seconds}")
+        if self.video_width < 16 or self.video_height < 16:
+            raise VnlError("video_width and video_height must be >= 16")
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig:
+    """Everything that defines a training run (written to `<run>/config.yaml`).
+
+    `env_config` holds overrides of the env's default config when given by the user; in a saved
+    config.yaml it holds the full resolved env config.
+    """
+
+    env: str
+    env_config: dict[str, Any] = dataclasses.field(default_factory=dict)
+    preset: str = "cpu"
+    seed: int = 0
+    ppo: PPOConfig = PPOConfig()
+    network: NetworkConfig = NetworkConfig()
+    log: LogConfig = LogConfig()
+
+    def validate(self) -> None:
+        if self.preset not in PRESETS:
+            raise VnlError(f"unknown preset {self.preset!r}; valid presets are: {', '.join(PRESETS)}")
+        registry.env_config(self.env, self.env_config)  # raises on unknown env or bad overrides
+        if self.seed < 0:
+            raise VnlError(f"seed must be >= 0, got {self.seed}")
+
+    def resolved_env_config(self) -> Any:
+        """The env's full frozen config with `env_config` applied."""
+        return registry.env_config(self.env, self.env_config)
+
+    def episode_length(self) -> int:
+        return self.ppo.episode_length or self.resolved_env_config().episode_length
+
+
+PRESETS: dict[str, dict[str, Any]] = {
+    # Fits a 2-core CPU: the ant learns to run in about 10 minutes (see README).
+    "cpu": {},
+    # The seed notebooks' GPU hyperparameters (DESIGN.md §5).
+    "gpu": {
+        "ppo": {
+            "num_timesteps": 30_000_000,
+            "num_envs": 4096,
+            "batch_size": 1024,
+            "num_minibatches": 32,
+            "num_updates_per_batch": 8,
+            "unroll_length": 10,
+            "discounting": 0.97,
+            "learning_rate": 3e-4,
+            "entropy_cost": 1e-3,
+            "reward_scaling": 0.1,
+            "normalize_observations": True,
+            "num_evals": 20,
+            "num_eval_envs": 128,
+        },
+        "network": {"policy_hidden_layer_sizes": [32, 32, 32, 32]},
+    },
+    # For tests and smoke runs: compiles and finishes in about a minute.
+    "tiny": {
+        "ppo": {
+            "num_timesteps": 4096,
+            "num_envs": 16,
+            "batch_size": 16,
+            "num_minibatches": 4,
+            "num_updates_per_batch": 1,
+            "unroll_length": 8,
+            "num_evals": 2,
+            "num_eval_envs": 4,
+            "episode_length": 32,
+        },
+        "network": {"policy_hidden_layer_sizes": [16, 16], "value_hidden_layer_sizes": [16, 16]},
+        "log": {"video_seconds": 0.5, "video_width": 64, "video_height": 48},
+    },
+}
+
+
+def default_preset() -> str:
+    """`cpu` when JAX has no accelerator, else `gpu`."""
+    import jax
+
+    return "cpu" if jax.default_backend() == "cpu" else "gpu"
+
+
+def build(
+    env: str,
+    preset: str | None = None,
+    file_values: dict[str, Any] | None = None,
+    assignments: list[str] | None = None,
+    flags: dict[str, Any] | None = None,
+) -> TrainConfig:
+    """Combines preset < YAML file values < `--set` assignments < plain flags into a config."""
+    file_values = dict(file_values or {})
+    if "env" in file_values and file_values["env"] != env:
+        raise VnlError(
+            f"the config file is for env {file_values['env']!r} but {env!r} was asked for"
+        )
+    preset = preset or file_values.get("preset") or default_preset()
+    if preset not in PRESETS:
+        raise VnlError(f"unknown preset {preset!r}; valid presets are: {', '.join(PRESETS)}")
+    values: dict[str, Any] = config_lib.merge({"env": env, "preset": preset}, PRESETS[preset])
+    values = config_lib.merge(values, file_values)
+    values["preset"] = preset
+    for text in assignments or []:
+        values = config_lib.merge(values, config_lib.parse_assignment(text))
+    values = config_lib.merge(values, flags or {})
+    return config_lib.from_dict(TrainConfig, values)
+
+
+def resolved(config: TrainConfig) -> TrainConfig:
+    """The config with `env_config` expanded to the env's full config (what config.yaml holds)."""
+    full = config_lib.to_dict(config.resolved_env_config())
+    return dataclasses.replace(config, env_config=full)
