@@ -1,0 +1,139 @@
+"""The `vnl` command end to end (train -> eval -> render) and its one-line errors."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import mediapy
+import numpy as np
+import pytest
+
+from vnl import cli
+from vnl.io import checkpoint, metrics as metrics_io
+
+VNL = [sys.executable, "-m", "vnl.cli"]
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def run(*args, timeout=900):
+    return subprocess.run([*VNL, *map(str, args)], capture_output=True, text=True, timeout=timeout,
+                          cwd=ROOT)
+
+
+@pytest.fixture(scope="module")
+def trained_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("cli") / "ant"
+    p = run("train", "ant_run", "--preset", "tiny", "--out", out, "--set", "log.video_seconds=0.5")
+    assert p.returncode == 0, p.stdout + p.stderr
+    return out, p.stdout
+
+
+def test_train_writes_a_complete_run_directory(trained_run):
+    out, stdout = trained_run
+    assert (out / "config.yaml").is_file()
+    assert (out / "learning_curve.png").stat().st_size > 1000
+    records = metrics_io.read(out / "metrics.jsonl")
+    assert len(records) >= 2 and records[-1]["step"] >= 4096
+    assert checkpoint.steps(out)
+    assert "[vnl] step" in stdout and "steps/s" in stdout and "ETA" in stdout
+    video = mediapy.read_video(str(out / "final_policy.mp4"))
+    assert video.shape[0] >= 2 and video.shape[-1] == 3
+    # A real rendering: not blank, and the animal moves between first and last frame.
+    assert video[0].std() > 5
+    assert np.abs(video[-1].astype(int) - video[0].astype(int)).mean() > 0.1
+
+
+def test_eval_prints_table_and_writes_json(trained_run, tmp_path):
+    out, _ = trained_run
+    p = run("eval", out, "--episodes", "3", "--steps", "20", "--out", tmp_path / "e.json")
+    assert p.returncode == 0, p.stderr
+    summary = json.loads((tmp_path / "e.json").read_text())
+    assert summary["episodes"] == 3
+    for key in ("episode_reward", "episode_length", "forward_distance", "mean_forward_velocity",
+                "episode_reward/forward", "episode_reward/healthy", "episode_reward/ctrl_cost"):
+        assert set(summary[key]) == {"mean", "std"}, key
+        assert key in p.stdout
+    assert 1 <= summary["episode_length"]["mean"] <= 20
+
+
+def test_render_any_named_camera(trained_run, tmp_path):
+    out, _ = trained_run
+    p = run("render", "--list-cameras", out)
+    assert p.returncode == 0 and "walker/back" in p.stdout and "walker/egocentric" in p.stdout
+    p = run("render", out, "--camera", "back", "--steps", "6", "--width", "96", "--height", "64",
+            "--out", tmp_path / "back.mp4")
+    assert p.returncode == 0, p.stderr
+    video = mediapy.read_video(str(tmp_path / "back.mp4"))
+    assert video.shape[1:] == (64, 96, 3) and video.shape[0] >= 2
+
+
+def test_sigterm_stops_cleanly_and_keeps_checkpoint(tmp_path):
+    out = tmp_path / "interrupted"
+    proc = subprocess.Popen(
+        [*VNL, "train", "ant_run", "--preset", "tiny", "--out", str(out), "--no-video",
+         "--steps", "2000000", "--set", "ppo.num_evals=400"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
+    )
+    deadline = time.time() + 600
+    lines = []
+    while time.time() < deadline:
+        line = proc.stdout.readline()
+        lines.append(line)
+        if line.startswith("[vnl] step"):
+            break
+    proc.send_signal(signal.SIGTERM)
+    stdout, stderr = proc.communicate(timeout=300)
+    text = "".join(lines) + stdout
+    assert proc.returncode == 130, text + stderr
+    assert "stopped at step" in text and "vnl eval" in text
+    assert "Traceback" not in stderr
+    steps = checkpoint.steps(out)
+    assert steps and steps[-1] < 2_000_000
+    records = metrics_io.read(out / "metrics.jsonl")
+    assert records and all("step" in r for r in records)
+
+
+@pytest.mark.parametrize(
+    "argv, words",
+    [
+        (["train", "ant_walk"], ["unknown environment", "ant_run"]),
+        (["train", "ant_run", "--set", "ppo.num_envs=100"], ["multiple of num_envs"]),
+        (["train", "ant_run", "--set", "ppo.nope=1"], ["ppo.nope"]),
+        (["train", "ant_run", "--config", "/nonexistent.yaml"], ["config file not found"]),
+        (["train", "ant_run", "--preset", "tiny", "--set", "log.video_camera=ceiling"],
+         ["unknown camera", "ceiling"]),
+        (["eval", "/nonexistent/run"], ["run directory not found"]),
+        (["render", "/nonexistent/run"], ["run directory not found"]),
+        (["eval", "."], ["not a vnl run directory"]),
+    ],
+)
+def test_user_errors_are_one_line_exit_2(argv, words, capsys):
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("vnl: error:") and "\n" not in err, err
+    for w in words:
+        assert w in err, (w, err)
+
+
+def test_missing_checkpoint_and_unknown_camera(trained_run, tmp_path, capsys):
+    out, _ = trained_run
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    (empty / "config.yaml").write_text((out / "config.yaml").read_text())
+    assert cli.main(["eval", str(empty)]) == 2
+    assert "no checkpoint" in capsys.readouterr().err
+    assert cli.main(["render", str(out), "--camera", "ceiling"]) == 2
+    err = capsys.readouterr().err
+    assert "unknown camera 'ceiling'" in err and "walker/side" in err
+
+
+def test_list_shows_every_env(capsys):
+    assert cli.main(["list", "--verbose"]) == 0
+    out = capsys.readouterr().out
+    assert "ant_run" in out and "humanoid_run" in out
+    assert "336" in out and "27" in out  # observation widths
+    assert "qpos[2:]" in out and "cameras:" in out

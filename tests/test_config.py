@@ -1,0 +1,107 @@
+"""The config rejects bad input with a message naming the key, before anything compiles."""
+
+import pytest
+
+import vnl
+from vnl import config as config_lib
+from vnl.errors import VnlError
+from vnl.train import config as train_config
+
+
+def build(*assignments, **kw):
+    return train_config.build("ant_run", "cpu", assignments=list(assignments), **kw)
+
+
+def test_defaults_and_overrides_make_new_configs():
+    base = build()
+    changed = build("ppo.learning_rate=1e-3", "env_config.reset_noise_scale=0.05")
+    assert changed.ppo.learning_rate == pytest.approx(1e-3)
+    assert changed.resolved_env_config().reset_noise_scale == pytest.approx(0.05)
+    # The shared default is untouched.
+    assert base.ppo.learning_rate == pytest.approx(3e-4)
+    assert train_config.PPOConfig().learning_rate == pytest.approx(3e-4)
+
+
+@pytest.mark.parametrize(
+    "assignment, words",
+    [
+        ("ppo.foo=1", ["ppo.foo", "valid keys", "learning_rate"]),
+        ("bogus=1", ["bogus", "valid keys"]),
+        ("ppo.num_envs=100", ["multiple of num_envs", "100"]),
+        ("ppo.learning_rate=abc", ["ppo.learning_rate", "number"]),
+        ("ppo.learning_rate=-1", ["learning_rate", "> 0"]),
+        ("ppo.num_envs=2.5", ["ppo.num_envs", "integer"]),
+        ("ppo.discounting=1.5", ["discounting"]),
+        ("network.activation=gelu", ["network.activation", "swish"]),
+        ("network.policy_hidden_layer_sizes=[]", ["policy_hidden_layer_sizes"]),
+        ("env_config.reset_noise_scale=-1", ["reset_noise_scale", ">= 0"]),
+        ("env_config.nonsense=3", ["nonsense", "valid keys"]),
+        ("env_config.healthy_z_range=[1.0, 0.5]", ["healthy_z_range"]),
+        ("log.checkpoint_every=0", ["checkpoint_every"]),
+        ("seed=-3", ["seed"]),
+        ("ppo.normalize_observations=3", ["normalize_observations", "true or false"]),
+        ("noequals", ["key=value"]),
+    ],
+)
+def test_bad_values_name_the_key(assignment, words):
+    with pytest.raises(VnlError) as e:
+        build(assignment)
+    for w in words:
+        assert w in str(e.value), (w, str(e.value))
+
+
+def test_unknown_env_and_preset_list_valid_names():
+    with pytest.raises(VnlError, match="valid names are: ant_run, humanoid_run"):
+        train_config.build("ant_walk", "cpu")
+    with pytest.raises(VnlError, match="valid presets are: cpu, gpu, tiny"):
+        train_config.build("ant_run", "fast")
+
+
+def test_precedence_preset_file_set_flags():
+    cfg = train_config.build(
+        "ant_run", "tiny",
+        file_values={"ppo": {"num_timesteps": 1000, "learning_rate": 1e-3}, "seed": 4},
+        assignments=["ppo.num_timesteps=2000"],
+        flags={"ppo": {"num_timesteps": 3000}},
+    )
+    assert cfg.ppo.num_timesteps == 3000  # flag beats --set beats file beats preset
+    assert cfg.ppo.learning_rate == pytest.approx(1e-3)  # file beats preset
+    assert cfg.ppo.num_envs == 16  # preset
+    assert cfg.seed == 4
+
+
+def test_yaml_roundtrip(tmp_path):
+    cfg = train_config.resolved(build("ppo.learning_rate=1e-3"))
+    config_lib.dump_yaml(cfg, str(tmp_path / "c.yaml"))
+    again = config_lib.from_dict(train_config.TrainConfig, config_lib.load_yaml(str(tmp_path / "c.yaml")))
+    assert again == cfg
+
+
+def test_yaml_file_errors(tmp_path):
+    with pytest.raises(VnlError, match="not found"):
+        config_lib.load_yaml(str(tmp_path / "missing.yaml"))
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("ppo: [unclosed\n")
+    with pytest.raises(VnlError, match="not valid YAML"):
+        config_lib.load_yaml(str(bad))
+    lst = tmp_path / "list.yaml"
+    lst.write_text("- 1\n- 2\n")
+    with pytest.raises(VnlError, match="mapping"):
+        config_lib.load_yaml(str(lst))
+
+
+def test_file_for_another_env_is_refused():
+    with pytest.raises(VnlError, match="humanoid_run"):
+        train_config.build("ant_run", "cpu", file_values={"env": "humanoid_run"})
+
+
+def test_make_rejects_bad_input_before_compiling():
+    with pytest.raises(VnlError, match="valid names are"):
+        vnl.make("rat_run")
+    with pytest.raises(VnlError, match="unknown config key not_a_key"):
+        vnl.make("ant_run", not_a_key=1)
+    with pytest.raises(VnlError, match="reset_noise_scale must be >= 0"):
+        vnl.make("humanoid_run", reset_noise_scale=-0.1)
+    with pytest.raises(VnlError, match="walker"):
+        vnl.make("ant_run", walker="rat")
+    assert vnl.names() == ["ant_run", "humanoid_run"]
