@@ -1,0 +1,77 @@
+"""Training env steps/s: `vnl train` (our adapter: metrics, checkpoints, progress) vs calling
+`brax.training.agents.ppo.train` directly on the same env and hyperparameters, in one process.
+
+Both use the same compiled-from-scratch setup; steps/s is Brax's own `training/sps` (env steps
+per second of the training epochs, compile excluded), averaged over the evaluations after the
+first. Target ratio vnl/brax >= 0.95.
+
+    .venv/bin/python benchmarks/ppo_throughput.py [--env ant_run] [--steps 600000]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import tempfile
+from pathlib import Path
+
+import jax
+
+from vnl.envs import registry
+from vnl.envs.wrappers import wrap_for_training
+from vnl.train import config as train_config, ppo
+
+
+def brax_direct(cfg: train_config.TrainConfig) -> list[float]:
+    from brax.training.agents.ppo import train as brax_ppo
+
+    env = registry.entry(cfg.env).factory(cfg.resolved_env_config())
+    p = cfg.ppo
+    sps: list[float] = []
+    brax_ppo.train(
+        environment=env, num_timesteps=p.num_timesteps, wrap_env_fn=wrap_for_training,
+        num_envs=p.num_envs, episode_length=cfg.episode_length(), learning_rate=p.learning_rate,
+        entropy_cost=p.entropy_cost, discounting=p.discounting, unroll_length=p.unroll_length,
+        batch_size=p.batch_size, num_minibatches=p.num_minibatches,
+        num_updates_per_batch=p.num_updates_per_batch,
+        normalize_observations=p.normalize_observations, reward_scaling=p.reward_scaling,
+        network_factory=ppo.network_factory(cfg.network), seed=cfg.seed,
+        num_evals=p.num_evals, num_eval_envs=p.num_eval_envs,
+        deterministic_eval=p.deterministic_eval,
+        progress_fn=lambda step, m: sps.append(float(m.get("training/sps", 0.0))),
+    )
+    return [s for s in sps if s > 0]
+
+
+def vnl_adapter(cfg: train_config.TrainConfig) -> list[float]:
+    with tempfile.TemporaryDirectory() as d:
+        result = ppo.train(cfg, Path(d) / "run", say=lambda s: None)
+    return [r["env_steps_per_sec"] for r in result.records if r["env_steps_per_sec"] > 0]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--env", default="ant_run")
+    parser.add_argument("--steps", type=int, default=600_000)
+    args = parser.parse_args()
+    cfg = train_config.build(
+        args.env, "cpu",
+        flags={"ppo": {"num_timesteps": args.steps, "num_evals": 4},
+               "log": {"video": False, "progress": False}},
+    )
+    print(f"device: {jax.devices()[0].platform} x{jax.device_count()}; {args.env}, "
+          f"{args.steps:,} steps, {cfg.ppo.num_envs} envs")
+    rows = []
+    for label, fn in (("brax ppo.train", brax_direct), ("vnl train", vnl_adapter)):
+        sps = fn(cfg)
+        rows.append((label, statistics.mean(sps[1:] or sps)))
+        print(f"  {label}: per-eval steps/s {', '.join(f'{s:,.0f}' for s in sps)}", flush=True)
+    (_, brax_sps), (_, vnl_sps) = rows
+    print(f"{'runner':<16} {'env steps/s':>12}")
+    for label, s in rows:
+        print(f"{label:<16} {s:>12,.0f}")
+    print(f"ratio vnl/brax: {vnl_sps / brax_sps:.3f} (target >= 0.95)")
+
+
+if __name__ == "__main__":
+    main()

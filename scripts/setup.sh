@@ -1,0 +1,27 @@
+#!/usr/bin/env bash
+# Sets up vnl on a fresh machine: headless OpenGL (for videos) and a virtual environment .venv
+# with the pinned dependency set. Safe to run again (it only installs what is missing).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+# Headless OpenGL for MuJoCo's renderer (EGL, with OSMesa as a fallback). Best effort: without it
+# training works and videos are skipped with a message saying how to enable them.
+if command -v apt-get >/dev/null 2>&1 && [ "$(id -u)" = 0 ]; then
+  if ! ldconfig -p | grep -q "libEGL.so.1" || ! ldconfig -p | grep -q "libOSMesa"; then
+    (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq \
+       libegl1 libgl1-mesa-dri libosmesa6 >/dev/null) \
+      || echo "setup: could not install OpenGL libraries; videos will be skipped" >&2
+  fi
+else
+  echo "setup: not root or no apt-get; install EGL/OSMesa yourself for videos" \
+       "(Debian: libegl1 libgl1-mesa-dri libosmesa6)" >&2
+fi
+
+PY=${PYTHON:-python3.11}
+command -v "$PY" >/dev/null 2>&1 || PY=python3
+"$PY" -c 'import sys; assert sys.version_info[:2] == (3, 11), f"vnl needs Python 3.11, found {sys.version.split()[0]}"'
+[ -x .venv/bin/python ] || "$PY" -m venv .venv
+.venv/bin/python -m pip install -q --upgrade pip
+# requirements.lock pins every transitive dependency to the set tested in CI.
+.venv/bin/python -m pip install -q -c requirements.lock -e ".[dev]"
+echo "setup: done (.venv ready; try .venv/bin/vnl list)"
