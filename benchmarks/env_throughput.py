@@ -14,7 +14,6 @@ import platform
 import time
 
 import jax
-import jax.numpy as jp
 from mujoco import mjx
 
 import vnl
@@ -37,8 +36,7 @@ def measure(name: str, batch: int) -> tuple[float, float]:
     env = vnl.make(name)
     keys = jax.random.split(jax.random.PRNGKey(0), batch)
     state = jax.jit(jax.vmap(env.reset))(keys)
-    actions = jax.random.uniform(jax.random.PRNGKey(1), (STEPS, batch, env.action_size),
-                                 minval=-1, maxval=1)
+    actions = jax.random.uniform(jax.random.PRNGKey(1), (STEPS, batch, env.action_size), minval=-1, maxval=1)
 
     @jax.jit
     def env_run(state, actions):
@@ -50,8 +48,9 @@ def measure(name: str, batch: int) -> tuple[float, float]:
     def raw_run(data, actions):
         def control(d, a):
             d = d.replace(ctrl=a)
-            d = jax.lax.scan(lambda d, _: (jax.vmap(mjx.step, in_axes=(None, 0))(model, d), None),
-                             d, None, length=env.n_substeps)[0]
+            d = jax.lax.scan(
+                lambda d, _: (jax.vmap(mjx.step, in_axes=(None, 0))(model, d), None), d, None, length=env.n_substeps
+            )[0]
             return d, None
 
         return jax.lax.scan(control, data, actions)[0]
@@ -71,8 +70,7 @@ def main() -> None:
     for name in args.envs:
         for batch in args.batches:
             env_sps, raw_sps = measure(name, batch)
-            print(f"{name:<16} {batch:>6} {env_sps:>12,.0f} {raw_sps:>12,.0f} {env_sps / raw_sps:>8.2f}",
-                  flush=True)
+            print(f"{name:<16} {batch:>6} {env_sps:>12,.0f} {raw_sps:>12,.0f} {env_sps / raw_sps:>8.2f}", flush=True)
 
 
 if __name__ == "__main__":

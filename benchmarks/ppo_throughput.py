@@ -19,7 +19,8 @@ import jax
 
 from vnl.envs import registry
 from vnl.envs.wrappers import wrap_for_training
-from vnl.train import config as train_config, ppo
+from vnl.train import config as train_config
+from vnl.train import ppo
 
 
 def brax_direct(cfg: train_config.TrainConfig) -> list[float]:
@@ -29,14 +30,24 @@ def brax_direct(cfg: train_config.TrainConfig) -> list[float]:
     p = cfg.ppo
     sps: list[float] = []
     brax_ppo.train(
-        environment=env, num_timesteps=p.num_timesteps, wrap_env_fn=wrap_for_training,
-        num_envs=p.num_envs, episode_length=cfg.episode_length(), learning_rate=p.learning_rate,
-        entropy_cost=p.entropy_cost, discounting=p.discounting, unroll_length=p.unroll_length,
-        batch_size=p.batch_size, num_minibatches=p.num_minibatches,
+        environment=env,
+        num_timesteps=p.num_timesteps,
+        wrap_env_fn=wrap_for_training,
+        num_envs=p.num_envs,
+        episode_length=cfg.episode_length(),
+        learning_rate=p.learning_rate,
+        entropy_cost=p.entropy_cost,
+        discounting=p.discounting,
+        unroll_length=p.unroll_length,
+        batch_size=p.batch_size,
+        num_minibatches=p.num_minibatches,
         num_updates_per_batch=p.num_updates_per_batch,
-        normalize_observations=p.normalize_observations, reward_scaling=p.reward_scaling,
-        network_factory=ppo.network_factory(cfg.network), seed=cfg.seed,
-        num_evals=p.num_evals, num_eval_envs=p.num_eval_envs,
+        normalize_observations=p.normalize_observations,
+        reward_scaling=p.reward_scaling,
+        network_factory=ppo.network_factory(cfg.network),
+        seed=cfg.seed,
+        num_evals=p.num_evals,
+        num_eval_envs=p.num_eval_envs,
         deterministic_eval=p.deterministic_eval,
         progress_fn=lambda step, m: sps.append(float(m.get("training/sps", 0.0))),
     )
@@ -55,12 +66,14 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=600_000)
     args = parser.parse_args()
     cfg = train_config.build(
-        args.env, "cpu",
-        flags={"ppo": {"num_timesteps": args.steps, "num_evals": 4},
-               "log": {"video": False, "progress": False}},
+        args.env,
+        "cpu",
+        flags={"ppo": {"num_timesteps": args.steps, "num_evals": 4}, "log": {"video": False, "progress": False}},
     )
-    print(f"device: {jax.devices()[0].platform} x{jax.device_count()}; {args.env}, "
-          f"{args.steps:,} steps, {cfg.ppo.num_envs} envs")
+    print(
+        f"device: {jax.devices()[0].platform} x{jax.device_count()}; {args.env}, "
+        f"{args.steps:,} steps, {cfg.ppo.num_envs} envs"
+    )
     rows = []
     for label, fn in (("brax ppo.train", brax_direct), ("vnl train", vnl_adapter)):
         sps = fn(cfg)

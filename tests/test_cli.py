@@ -1,27 +1,26 @@
 """The `vnl` command end to end (train -> eval -> render) and its one-line errors."""
 
 import json
-import os
 import signal
 import subprocess
 import sys
 import time
 from pathlib import Path
 
-import mediapy
 import numpy as np
 import pytest
 
 from vnl import cli
-from vnl.io import checkpoint, metrics as metrics_io
+from vnl.io import checkpoint
+from vnl.io import metrics as metrics_io
+from vnl.io.video import read_mp4
 
 VNL = [sys.executable, "-m", "vnl.cli"]
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def run(*args, timeout=900):
-    return subprocess.run([*VNL, *map(str, args)], capture_output=True, text=True, timeout=timeout,
-                          cwd=ROOT)
+    return subprocess.run([*VNL, *map(str, args)], capture_output=True, text=True, timeout=timeout, cwd=ROOT)
 
 
 @pytest.fixture(scope="module")
@@ -40,7 +39,7 @@ def test_train_writes_a_complete_run_directory(trained_run):
     assert len(records) >= 2 and records[-1]["step"] >= 4096
     assert checkpoint.steps(out)
     assert "[vnl] step" in stdout and "steps/s" in stdout and "ETA" in stdout
-    video = mediapy.read_video(str(out / "final_policy.mp4"))
+    video = read_mp4(str(out / "final_policy.mp4"))
     assert video.shape[0] >= 2 and video.shape[-1] == 3
     # A real rendering: not blank, and the animal moves between first and last frame.
     assert video[0].std() > 5
@@ -53,8 +52,15 @@ def test_eval_prints_table_and_writes_json(trained_run, tmp_path):
     assert p.returncode == 0, p.stderr
     summary = json.loads((tmp_path / "e.json").read_text())
     assert summary["episodes"] == 3
-    for key in ("episode_reward", "episode_length", "forward_distance", "mean_forward_velocity",
-                "episode_reward/forward", "episode_reward/healthy", "episode_reward/ctrl_cost"):
+    for key in (
+        "episode_reward",
+        "episode_length",
+        "forward_distance",
+        "mean_forward_velocity",
+        "episode_reward/forward",
+        "episode_reward/healthy",
+        "episode_reward/ctrl_cost",
+    ):
         assert set(summary[key]) == {"mean", "std"}, key
         assert key in p.stdout
     assert 1 <= summary["episode_length"]["mean"] <= 20
@@ -64,19 +70,46 @@ def test_render_any_named_camera(trained_run, tmp_path):
     out, _ = trained_run
     p = run("render", "--list-cameras", out)
     assert p.returncode == 0 and "walker/back" in p.stdout and "walker/egocentric" in p.stdout
-    p = run("render", out, "--camera", "back", "--steps", "6", "--width", "96", "--height", "64",
-            "--out", tmp_path / "back.mp4")
+    p = run(
+        "render",
+        out,
+        "--camera",
+        "back",
+        "--steps",
+        "6",
+        "--width",
+        "96",
+        "--height",
+        "64",
+        "--out",
+        tmp_path / "back.mp4",
+    )
     assert p.returncode == 0, p.stderr
-    video = mediapy.read_video(str(tmp_path / "back.mp4"))
+    video = read_mp4(str(tmp_path / "back.mp4"))
     assert video.shape[1:] == (64, 96, 3) and video.shape[0] >= 2
 
 
 def test_sigterm_stops_cleanly_and_keeps_checkpoint(tmp_path):
     out = tmp_path / "interrupted"
     proc = subprocess.Popen(
-        [*VNL, "train", "ant_run", "--preset", "tiny", "--out", str(out), "--no-video",
-         "--steps", "2000000", "--set", "ppo.num_evals=400"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
+        [
+            *VNL,
+            "train",
+            "ant_run",
+            "--preset",
+            "tiny",
+            "--out",
+            str(out),
+            "--no-video",
+            "--steps",
+            "2000000",
+            "--set",
+            "ppo.num_evals=400",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=ROOT,
     )
     deadline = time.time() + 600
     lines = []
@@ -104,8 +137,7 @@ def test_sigterm_stops_cleanly_and_keeps_checkpoint(tmp_path):
         (["train", "ant_run", "--set", "ppo.num_envs=100"], ["multiple of num_envs"]),
         (["train", "ant_run", "--set", "ppo.nope=1"], ["ppo.nope"]),
         (["train", "ant_run", "--config", "/nonexistent.yaml"], ["config file not found"]),
-        (["train", "ant_run", "--preset", "tiny", "--set", "log.video_camera=ceiling"],
-         ["unknown camera", "ceiling"]),
+        (["train", "ant_run", "--preset", "tiny", "--set", "log.video_camera=ceiling"], ["unknown camera", "ceiling"]),
         (["eval", "/nonexistent/run"], ["run directory not found"]),
         (["render", "/nonexistent/run"], ["run directory not found"]),
         (["eval", "."], ["not a vnl run directory"]),

@@ -59,7 +59,8 @@ def test_unknown_env_and_preset_list_valid_names():
 
 def test_precedence_preset_file_set_flags():
     cfg = train_config.build(
-        "ant_run", "tiny",
+        "ant_run",
+        "tiny",
         file_values={"ppo": {"num_timesteps": 1000, "learning_rate": 1e-3}, "seed": 4},
         assignments=["ppo.num_timesteps=2000"],
         flags={"ppo": {"num_timesteps": 3000}},

@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 
 import vnl
-from vnl.tasks import run as run_task
 
 BATCH = 4
 STEPS = 200
@@ -101,13 +100,20 @@ def test_humanoid_observation_is_the_notebooks_layout():
     m = e.mj_model
     nb = m.nbody - 1
     t, b = 5, 1
-    expected = np.concatenate([
-        d.qpos[t, b, 2:], d.qvel[t, b], d._impl.cinert[t, b, 1:].ravel(), d.cvel[t, b, 1:].ravel(),
-        d.qfrc_actuator[t, b],
-    ])
+    expected = np.concatenate(
+        [
+            d.qpos[t, b, 2:],
+            d.qvel[t, b],
+            d._impl.cinert[t, b, 1:].ravel(),
+            d.cvel[t, b, 1:].ravel(),
+            d.qfrc_actuator[t, b],
+        ]
+    )
     np.testing.assert_allclose(traj.obs[t, b], expected, rtol=1e-6)
     assert e.observation_size == (m.nq - 2) + m.nv + nb * 10 + nb * 6 + m.nv == 336
-    assert [n for n, _ in run_task.observation_layout(e)][0] == "qpos[2:]"
+    layout = e.observation_layout()
+    assert [n for n, _ in layout][0] == "qpos[2:]"
+    assert sum(w for _, w in layout) == e.observation_size
 
 
 def test_bodies_resolved_by_name():
@@ -121,8 +127,7 @@ def test_bad_actions_never_reach_physics():
     e = env("ant_run")
     s = jax.jit(e.reset)(jax.random.PRNGKey(1))
     step = jax.jit(e.step)
-    for bad in (jp.full((e.action_size,), jp.nan), jp.full((e.action_size,), 1e9),
-                jp.full((e.action_size,), -jp.inf)):
+    for bad in (jp.full((e.action_size,), jp.nan), jp.full((e.action_size,), 1e9), jp.full((e.action_size,), -jp.inf)):
         n = step(s, bad)
         assert np.isfinite(n.obs).all() and np.isfinite(n.reward)
         assert np.abs(np.asarray(n.data.ctrl)).max() <= 1.0

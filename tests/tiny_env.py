@@ -46,8 +46,7 @@ class PointMass(Env):
         data, blew_up = self.physics_step(state.data, self.sanitize_action(action))
         reward = -jp.abs(data.qpos[0] - self.config.target)
         metrics = {**state.metrics, "reward/distance": reward}
-        return state.replace(data=data, obs=self._obs(data), reward=reward, done=blew_up,
-                             metrics=metrics)
+        return state.replace(data=data, obs=self._obs(data), reward=reward, done=blew_up, metrics=metrics)
 
     def _obs(self, data: mjx.Data) -> jax.Array:
         return jp.stack([data.qpos[0] - self.config.target, data.qvel[0]]).astype(jp.float32)

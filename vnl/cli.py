@@ -12,8 +12,9 @@ import json
 import os
 import sys
 import warnings
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 
 def _configure_process() -> str | None:
@@ -49,14 +50,15 @@ def _say(text: str) -> None:
 
 
 def _no_gl_line() -> str:
-    return ("[vnl] video skipped: no OpenGL found. Install EGL or OSMesa (Debian: apt-get install "
-            "libegl1 libgl1-mesa-dri libosmesa6) or set MUJOCO_GL=egl|osmesa")
+    return (
+        "[vnl] video skipped: no OpenGL found. Install EGL or OSMesa (Debian: apt-get install "
+        "libegl1 libgl1-mesa-dri libosmesa6) or set MUJOCO_GL=egl|osmesa"
+    )
 
 
 # --- commands ---------------------------------------------------------------------------------
 def cmd_list(args: argparse.Namespace) -> int:
     from vnl.envs import registry
-    from vnl.tasks import run
 
     rows = []
     for name in registry.names():
@@ -72,10 +74,12 @@ def cmd_list(args: argparse.Namespace) -> int:
             print(f"{name:<{width}}  {obs!s:>5}  {act:>4}  {desc}")
         else:
             env = row
-            layout = ", ".join(f"{n} ({w})" for n, w in run.observation_layout(env))
+            layout = ", ".join(f"{n} ({w})" for n, w in env.observation_layout())
             print(f"{'':<{width}}  observation: {layout}")
-            print(f"{'':<{width}}  control dt {env.dt:.3f} s, episode {env.config.episode_length}"
-                  f" steps; cameras: {', '.join(_cameras(env))}")
+            print(
+                f"{'':<{width}}  control dt {env.dt:.3f} s, episode {env.config.episode_length}"
+                f" steps; cameras: {', '.join(_cameras(env))}"
+            )
     return 0
 
 
@@ -89,8 +93,10 @@ def cmd_train(args: argparse.Namespace, gl: str | None) -> int:
     import time
 
     from vnl import config as config_lib
-    from vnl.io import metrics as metrics_io, plot
-    from vnl.train import config as train_config, ppo
+    from vnl.io import metrics as metrics_io
+    from vnl.io import plot
+    from vnl.train import config as train_config
+    from vnl.train import ppo
 
     file_values = config_lib.load_yaml(args.config) if args.config else {}
     flags: dict[str, Any] = {}
@@ -108,8 +114,7 @@ def cmd_train(args: argparse.Namespace, gl: str | None) -> int:
         from vnl.envs import registry
         from vnl.io import video
 
-        video.resolve_camera(registry.make(config.env, **config.env_config).mj_model,
-                             config.log.video_camera)
+        video.resolve_camera(registry.make(config.env, **config.env_config).mj_model, config.log.video_camera)
     out = Path(args.out) if args.out else Path("runs") / f"{config.env}-{time.strftime('%Y%m%d-%H%M%S')}"
     result = ppo.train(config, out, say=_say)
     records = metrics_io.read(out / "metrics.jsonl")
@@ -117,10 +122,12 @@ def cmd_train(args: argparse.Namespace, gl: str | None) -> int:
         plot.learning_curve(records, out / "learning_curve.png", title=f"{config.env} ({config.preset})")
         first, last = records[0], records[-1]
         vx = last.get("eval/mean_forward_velocity")
-        _say(f"[vnl] eval reward {first.get('eval/episode_reward', float('nan')):.1f} (untrained) -> "
-             f"{last.get('eval/episode_reward', float('nan')):.1f} at step {last['step']:,}"
-             + (f"; mean forward velocity {vx:.2f} m/s" if vx is not None else "")
-             + f"; {result.wall_time / 60:.1f} min")
+        _say(
+            f"[vnl] eval reward {first.get('eval/episode_reward', float('nan')):.1f} (untrained) -> "
+            f"{last.get('eval/episode_reward', float('nan')):.1f} at step {last['step']:,}"
+            + (f"; mean forward velocity {vx:.2f} m/s" if vx is not None else "")
+            + f"; {result.wall_time / 60:.1f} min"
+        )
     if config.log.video and not result.interrupted:
         _final_video(out, config, gl)
     _say(f"[vnl] run directory: {out}")
@@ -138,9 +145,15 @@ def _final_video(out: Path, config: Any, gl: str | None) -> None:
     run = load_run(out)
     steps = int(round(config.log.video_seconds / run.env.dt))
     try:
-        path, n = policy_video(run.env, run.policy, str(out / "final_policy.mp4"),
-                               config.log.video_camera, steps, config.log.video_width,
-                               config.log.video_height)
+        path, n = policy_video(
+            run.env,
+            run.policy,
+            str(out / "final_policy.mp4"),
+            config.log.video_camera,
+            steps,
+            config.log.video_width,
+            config.log.video_height,
+        )
     except VnlError as e:
         _say(f"[vnl] video skipped: {e}")
         return
@@ -160,8 +173,13 @@ def cmd_eval(args: argparse.Namespace) -> int:
     run = load_run(args.run_dir, step=args.step)
     steps = args.steps or run.config.episode_length()
     r = rollout(run.env, run.policy, jax.random.PRNGKey(args.seed), args.episodes, steps)
-    summary = {"run_dir": str(run.run_dir), "env": run.config.env, "checkpoint_step": run.step,
-               "max_steps": steps, **summarize(r, run.env.dt)}
+    summary = {
+        "run_dir": str(run.run_dir),
+        "env": run.config.env,
+        "checkpoint_step": run.step,
+        "max_steps": steps,
+        **summarize(r, run.env.dt),
+    }
     out = Path(args.out) if args.out else run.run_dir / "eval.json"
     out.write_text(json.dumps(summary, indent=2))
     print(f"{run.config.env} @ step {run.step:,}: {args.episodes} episodes of up to {steps} steps")
@@ -178,8 +196,8 @@ def cmd_render(args: argparse.Namespace, gl: str | None) -> int:
 
     if args.list_cameras:
         if args.run_dir:
-            from vnl.policy import read_config
             from vnl.envs import registry
+            from vnl.policy import read_config
 
             config = read_config(args.run_dir)
             env = registry.entry(config.env).factory(config.resolved_env_config())
@@ -202,8 +220,7 @@ def cmd_render(args: argparse.Namespace, gl: str | None) -> int:
     video.resolve_camera(run.env.mj_model, args.camera)
     name = f"render_{args.camera or 'side'}.mp4".replace("/", "_")
     out = args.out or str(run.run_dir / name)
-    path, n = policy_video(run.env, run.policy, out, args.camera, args.steps, args.width,
-                           args.height, args.seed)
+    path, n = policy_video(run.env, run.policy, out, args.camera, args.steps, args.width, args.height, args.seed)
     print(f"wrote {n} frames to {path}")
     return 0
 
@@ -219,8 +236,13 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("train", help="train with Brax PPO")
     p.add_argument("env", help="environment name (see `vnl list`)")
     p.add_argument("--config", help="YAML file with config values")
-    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a config value, e.g. --set ppo.learning_rate=1e-3 (repeatable)")
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a config value, e.g. --set ppo.learning_rate=1e-3 (repeatable)",
+    )
     p.add_argument("--preset", help="cpu | gpu | tiny (default: cpu without an accelerator)")
     p.add_argument("--out", help="run directory (default runs/<env>-<timestamp>)")
     p.add_argument("--seed", type=int)

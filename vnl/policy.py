@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import jax
 
@@ -47,8 +48,7 @@ def make_policy_fn(config: TrainConfig, env: Env, params: Any, deterministic: bo
 
     from vnl.train.ppo import network_factory
 
-    normalize = (running_statistics.normalize if config.ppo.normalize_observations
-                 else (lambda x, y: x))
+    normalize = running_statistics.normalize if config.ppo.normalize_observations else (lambda x, y: x)
     network = network_factory(config.network)(
         env.observation_size, env.action_size, preprocess_observations_fn=normalize
     )

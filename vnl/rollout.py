@@ -56,9 +56,7 @@ def rollout(env: Env, policy: Policy, rng: jax.Array, episodes: int, steps: int)
             return (nxt, alive), out
 
         keys = jax.random.split(k_act, steps)
-        (_, _), (qpos, reward, done, active, metrics) = jax.lax.scan(
-            body, (state, jp.ones((episodes,))), keys
-        )
+        (_, _), (qpos, reward, done, active, metrics) = jax.lax.scan(body, (state, jp.ones((episodes,))), keys)
         return state.data.qpos, state.metrics, qpos, reward, done, active, metrics
 
     qpos0, metrics0, qpos, reward, done, active, metrics = jax.device_get(run(rng))

@@ -108,6 +108,10 @@ class Env(abc.ABC):
             return shape
         return shape[-1]
 
+    def observation_layout(self) -> list[tuple[str, int]]:
+        """(name, width) of each block of a flat observation, in order (for `vnl list -v`)."""
+        return [("obs", self.observation_size)]
+
     @property
     def unwrapped(self) -> Env:
         return self
@@ -135,10 +139,6 @@ class Env(abc.ABC):
             return mjx.step(self._mjx_model, d), None
 
         data1, _ = jax.lax.scan(body, data0, None, length=self._n_substeps)
-        finite = (
-            jp.isfinite(data1.qpos).all()
-            & jp.isfinite(data1.qvel).all()
-            & jp.isfinite(data1.qacc).all()
-        )
+        finite = jp.isfinite(data1.qpos).all() & jp.isfinite(data1.qvel).all() & jp.isfinite(data1.qacc).all()
         data_out = jax.tree.map(lambda new, old: jp.where(finite, new, old), data1, data0)
         return data_out, 1.0 - finite.astype(jp.float32)

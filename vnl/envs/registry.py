@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 from vnl import config as config_lib
 from vnl.envs.base import Env
@@ -20,18 +21,19 @@ class Entry:
 
 _REGISTRY: dict[str, Entry] = {
     "ant_run": Entry(
-        run.Run, run.ANT_RUN,
+        run.Run,
+        run.ANT_RUN,
         "dm_control's ant runs forward on a flat floor (cheap: the CPU demo animal).",
     ),
     "humanoid_run": Entry(
-        run.Run, run.HUMANOID_RUN,
+        run.Run,
+        run.HUMANOID_RUN,
         "The notebooks' MJX humanoid runs forward on a flat floor.",
     ),
 }
 
 
-def register(name: str, factory: Callable[[Any], Env], default_config: Any,
-             description: str = "") -> None:
+def register(name: str, factory: Callable[[Any], Env], default_config: Any, description: str = "") -> None:
     """Adds an environment: `factory(config) -> Env` and its frozen default config dataclass.
 
     The config's fields become overridable keys (`vnl.make(name, key=value)`, `env_config.key`);
@@ -40,6 +42,11 @@ def register(name: str, factory: Callable[[Any], Env], default_config: Any,
     if not hasattr(default_config, "episode_length"):
         raise VnlError(f"{name}: the default config needs an episode_length field")
     _REGISTRY[name] = Entry(factory, default_config, description)
+
+
+def unregister(name: str) -> None:
+    """Removes an environment added with `register`."""
+    _REGISTRY.pop(name, None)
 
 
 def names() -> list[str]:
@@ -52,9 +59,7 @@ def entry(name: str) -> Entry:
     try:
         return _REGISTRY[name]
     except KeyError:
-        raise VnlError(
-            f"unknown environment {name!r}; valid names are: {', '.join(names())}"
-        ) from None
+        raise VnlError(f"unknown environment {name!r}; valid names are: {', '.join(names())}") from None
 
 
 def default_config(name: str) -> Any:

@@ -7,7 +7,8 @@ Playground does), so we provide the auto-reset that resets `data`.
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import jax
 import jax.numpy as jp

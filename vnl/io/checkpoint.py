@@ -62,15 +62,11 @@ def load(run_dir: str | Path, step: int | None = None) -> tuple[int, Any]:
 
     available = steps(run_dir)
     if not available:
-        raise VnlError(
-            f"no checkpoint in {checkpoint_dir(run_dir)}; train first with `vnl train ENV --out "
-            f"{run_dir}`"
-        )
+        raise VnlError(f"no checkpoint in {checkpoint_dir(run_dir)}; train first with `vnl train ENV --out {run_dir}`")
     if step is not None:
         if step not in available:
             raise VnlError(
-                f"no checkpoint at step {step} in {run_dir}; available steps: "
-                f"{', '.join(map(str, available))}"
+                f"no checkpoint at step {step} in {run_dir}; available steps: {', '.join(map(str, available))}"
             )
         candidates = [step]
     else:
@@ -83,6 +79,5 @@ def load(run_dir: str | Path, step: int | None = None) -> tuple[int, Any]:
         except Exception as e:  # noqa: BLE001 - any unreadable checkpoint falls back to an older one
             errors.append(f"step {s}: {type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}")
             if step is None:
-                warnings.warn(f"checkpoint {path} is unreadable ({errors[-1]}); trying an older one",
-                              stacklevel=2)
+                warnings.warn(f"checkpoint {path} is unreadable ({errors[-1]}); trying an older one", stacklevel=2)
     raise VnlError(f"no readable checkpoint in {checkpoint_dir(run_dir)} ({'; '.join(errors)})")

@@ -20,8 +20,11 @@ def learning_curve(records: list[dict[str, Any]], out: str | Path, title: str = 
     ax = axes[0]
     ax.plot(steps, reward, marker="o", color="C0")
     ax.fill_between(
-        steps, [m - s for m, s in zip(reward, std)], [m + s for m, s in zip(reward, std)],
-        color="C0", alpha=0.2,
+        steps,
+        [m - s for m, s in zip(reward, std, strict=True)],
+        [m + s for m, s in zip(reward, std, strict=True)],
+        color="C0",
+        alpha=0.2,
     )
     ax.set_xlabel("environment steps")
     ax.set_ylabel("eval episode reward")

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import mujoco
 import numpy as np
@@ -72,15 +72,35 @@ def render_frames(
 
 def write_mp4(frames: Sequence[np.ndarray] | np.ndarray, path: str | Path, fps: float) -> Path:
     """Writes uint8 frames (T, H, W, 3) as an H.264 .mp4 (ffmpeg from imageio-ffmpeg)."""
-    import shutil
-
-    import imageio_ffmpeg
-    import mediapy
-
-    if shutil.which("ffmpeg") is None:  # use the ffmpeg binary shipped by imageio-ffmpeg
-        mediapy.set_ffmpeg(imageio_ffmpeg.get_ffmpeg_exe())
+    mediapy = _mediapy()
     path = Path(path)
     tmp = path.with_name(path.stem + ".tmp" + path.suffix)
     mediapy.write_video(str(tmp), np.asarray(frames), fps=fps)
     tmp.replace(path)
     return path
+
+
+def read_mp4(path: str | Path) -> np.ndarray:
+    """Frames of a video as uint8 (T, H, W, 3).
+
+    Reads with imageio-ffmpeg: mediapy 1.2.7's reader passes `-vsync`, which ffmpeg 9 removed.
+    """
+    import imageio_ffmpeg
+
+    reader = imageio_ffmpeg.read_frames(str(path), pix_fmt="rgb24")
+    meta = next(reader)
+    width, height = meta["size"]
+    frames = [np.frombuffer(f, np.uint8).reshape(height, width, 3) for f in reader]
+    return np.stack(frames)
+
+
+def _mediapy():  # noqa: ANN202 - returns the mediapy module
+    """mediapy, pointed at imageio-ffmpeg's bundled ffmpeg when none is on PATH."""
+    import shutil
+
+    import imageio_ffmpeg
+    import mediapy
+
+    if shutil.which("ffmpeg") is None:
+        mediapy.set_ffmpeg(imageio_ffmpeg.get_ffmpeg_exe())
+    return mediapy

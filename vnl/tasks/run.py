@@ -60,9 +60,7 @@ class RunConfig:
         if not self.physics_timestep > 0:
             raise VnlError(f"physics_timestep must be > 0, got {self.physics_timestep}")
         if self.physics_timestep > 0.05:
-            raise VnlError(
-                f"physics_timestep {self.physics_timestep} s is too large to be stable; use <= 0.05"
-            )
+            raise VnlError(f"physics_timestep {self.physics_timestep} s is too large to be stable; use <= 0.05")
         lo, hi = self.healthy_z_range
         if not lo < hi:
             raise VnlError(f"healthy_z_range must be (low, high) with low < high, got {(lo, hi)}")
@@ -167,9 +165,7 @@ class Run(Env):
         cfg: RunConfig = self._config
         rng, k1, k2 = jax.random.split(rng, 3)
         noise = cfg.reset_noise_scale
-        qpos = self._init_qpos + jax.random.uniform(
-            k1, (self._mj_model.nq,), minval=-noise, maxval=noise
-        )
+        qpos = self._init_qpos + jax.random.uniform(k1, (self._mj_model.nq,), minval=-noise, maxval=noise)
         qvel = jax.random.uniform(k2, (self._mj_model.nv,), minval=-noise, maxval=noise)
         data = mjx.make_data(self._mjx_model).replace(qpos=qpos, qvel=qvel)
         data = mjx.forward(self._mjx_model, data)
@@ -220,9 +216,7 @@ class Run(Env):
             "y_velocity": velocity[1] * ok,
             "physics_nan": blew_up,
         }
-        return state.replace(
-            data=data, obs=self._obs(data), reward=reward, done=done, metrics=metrics
-        )
+        return state.replace(data=data, obs=self._obs(data), reward=reward, done=done, metrics=metrics)
 
     def _is_healthy(self, data: mjx.Data) -> jax.Array:
         cfg: RunConfig = self._config
@@ -232,8 +226,15 @@ class Run(Env):
         ok = (z >= lo) & (z <= hi) & (upright >= cfg.healthy_min_upright)
         return ok.astype(jp.float32)
 
+    def observation_layout(self) -> list[tuple[str, int]]:
+        m = self._mj_model
+        layout = [("qpos[2:]", m.nq - 2), ("qvel", m.nv)]
+        if self._walker_name == "humanoid":
+            layout += [("cinert[1:]", (m.nbody - 1) * 10), ("cvel[1:]", (m.nbody - 1) * 6), ("qfrc_actuator", m.nv)]
+        return layout
+
     def _obs(self, data: mjx.Data) -> jax.Array:
-        parts = [data.qpos[self._obs_qpos_start:], data.qvel]
+        parts = [data.qpos[self._obs_qpos_start :], data.qvel]
         if self._walker_name == "humanoid":
             parts += [
                 data._impl.cinert[1:].ravel(),  # MJX keeps cinert in its impl data
@@ -241,13 +242,3 @@ class Run(Env):
                 data.qfrc_actuator,
             ]
         return jp.concatenate(parts).astype(jp.float32)
-
-
-def observation_layout(env: Run) -> list[tuple[str, int]]:
-    """(name, width) of each observation block, in order, for `vnl list --verbose`."""
-    m = env.mj_model
-    layout = [("qpos[2:]", m.nq - 2), ("qvel", m.nv)]
-    if env.config.walker == "humanoid":
-        layout += [("cinert[1:]", (m.nbody - 1) * 10), ("cvel[1:]", (m.nbody - 1) * 6),
-                   ("qfrc_actuator", m.nv)]
-    return layout

@@ -43,9 +43,17 @@ class PPOConfig:
     episode_length: int | None = None  # None: the env's own `episode_length`
 
     def validate(self) -> None:
-        positive = ("num_timesteps", "num_envs", "batch_size", "num_minibatches",
-                    "num_updates_per_batch", "unroll_length", "action_repeat", "num_evals",
-                    "num_eval_envs")
+        positive = (
+            "num_timesteps",
+            "num_envs",
+            "batch_size",
+            "num_minibatches",
+            "num_updates_per_batch",
+            "unroll_length",
+            "action_repeat",
+            "num_evals",
+            "num_eval_envs",
+        )
         for key in positive:
             if getattr(self, key) < 1:
                 raise VnlError(f"{key} must be >= 1, got {getattr(self, key)}")
@@ -201,9 +209,7 @@ def build(
     """Combines preset < YAML file values < `--set` assignments < plain flags into a config."""
     file_values = dict(file_values or {})
     if "env" in file_values and file_values["env"] != env:
-        raise VnlError(
-            f"the config file is for env {file_values['env']!r} but {env!r} was asked for"
-        )
+        raise VnlError(f"the config file is for env {file_values['env']!r} but {env!r} was asked for")
     preset = preset or file_values.get("preset") or default_preset()
     if preset not in PRESETS:
         raise VnlError(f"unknown preset {preset!r}; valid presets are: {', '.join(PRESETS)}")

@@ -14,12 +14,14 @@ import functools
 import signal
 import threading
 import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any
 
 from vnl import config as config_lib
 from vnl.errors import VnlError
-from vnl.io import checkpoint, metrics as metrics_io
+from vnl.io import checkpoint
+from vnl.io import metrics as metrics_io
 from vnl.train.config import NetworkConfig, TrainConfig, resolved
 
 
@@ -45,8 +47,7 @@ def network_factory(net: NetworkConfig) -> Callable[..., Any]:
     import jax
     from brax.training.agents.ppo import networks as ppo_networks
 
-    activation = {"swish": jax.nn.swish, "relu": jax.nn.relu, "tanh": jax.nn.tanh,
-                  "elu": jax.nn.elu}[net.activation]
+    activation = {"swish": jax.nn.swish, "relu": jax.nn.relu, "tanh": jax.nn.tanh, "elu": jax.nn.elu}[net.activation]
     return functools.partial(
         ppo_networks.make_ppo_networks,
         policy_hidden_layer_sizes=tuple(net.policy_hidden_layer_sizes),
@@ -85,8 +86,10 @@ def _stop_on_signals(flag: threading.Event, say: Callable[[str], None]) -> Itera
         if flag.is_set() and signum == signal.SIGINT:
             raise KeyboardInterrupt
         flag.set()
-        say(f"\n[vnl] {signal.Signals(signum).name}: stopping at the next evaluation "
-            "(Ctrl-C again to abort now; checkpoints already written are kept)")
+        say(
+            f"\n[vnl] {signal.Signals(signum).name}: stopping at the next evaluation "
+            "(Ctrl-C again to abort now; checkpoints already written are kept)"
+        )
 
     old = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
@@ -159,14 +162,14 @@ def train(
         if config.log.progress:
             elapsed = time.time() - t_start
             frac = step / p.num_timesteps
-            eta = elapsed / frac * (1 - frac) if 0 < frac < 1 else 0.0
+            eta = _fmt_time(elapsed / frac * (1 - frac)) if 0 < frac < 1 else ("--:--" if frac <= 0 else "0:00")
             vx = record.get("eval/mean_forward_velocity")
             say(
                 f"[vnl] step {step:>11,}/{p.num_timesteps:,} ({100 * min(frac, 1):3.0f}%) | "
                 f"reward {record.get('eval/episode_reward', float('nan')):9.2f} | "
                 + (f"vx {vx:+.2f} m/s | " if vx is not None else "")
                 + f"{record['env_steps_per_sec']:7,.0f} steps/s | "
-                f"elapsed {_fmt_time(elapsed)} | ETA {_fmt_time(eta)}"
+                f"elapsed {_fmt_time(elapsed)} | ETA {eta}"
             )
         if stop.is_set():
             raise _StopRequested
@@ -177,8 +180,10 @@ def train(
         if n % config.log.checkpoint_every == 0 or step >= p.num_timesteps:
             checkpoint.save(run_dir, step, params, keep=config.log.keep_checkpoints)
 
-    say(f"[vnl] training {config.env} (preset {config.preset}) on {devices} "
-        f"{jax.default_backend()} device(s) -> {run_dir}")
+    say(
+        f"[vnl] training {config.env} (preset {config.preset}) on {devices} "
+        f"{jax.default_backend()} device(s) -> {run_dir}"
+    )
     say("[vnl] compiling (first evaluation follows; this takes a minute or two on a CPU)...")
     interrupted = False
     params = None
@@ -218,8 +223,10 @@ def train(
     last = checkpoint.steps(run_dir)
     steps = last[-1] if last else 0
     if interrupted:
-        say(f"[vnl] stopped at step {steps:,}; the last checkpoint is {run_dir}/checkpoints/"
-            f"{steps:012d}. Use it with `vnl eval {run_dir}` or `vnl render {run_dir}`.")
+        say(
+            f"[vnl] stopped at step {steps:,}; the last checkpoint is {run_dir}/checkpoints/"
+            f"{steps:012d}. Use it with `vnl eval {run_dir}` or `vnl render {run_dir}`."
+        )
     return TrainResult(
         run_dir=run_dir,
         steps=steps,

@@ -33,4 +33,3 @@ def build(self_collision: bool = False, floor_contacts: str = "feet_and_torso") 
                 geom.conaffinity = 0
     add_tracking_cameras(model.find("body", "torso"), distance=3.0, height=1.5)
     return Walker(name="ant", mjcf_model=model, root_body="torso", standalone=False)
-

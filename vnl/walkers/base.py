@@ -32,10 +32,16 @@ def add_tracking_cameras(body: mjcf.Element, distance: float, height: float) -> 
     `vnl render --camera side|back`.
     """
     body.add(
-        "camera", name="side", mode="trackcom", pos=[0, -distance, height],
+        "camera",
+        name="side",
+        mode="trackcom",
+        pos=[0, -distance, height],
         xyaxes=[1, 0, 0, 0, height, distance],
     )
     body.add(
-        "camera", name="back", mode="trackcom", pos=[-distance, 0, height],
+        "camera",
+        name="back",
+        mode="trackcom",
+        pos=[-distance, 0, height],
         xyaxes=[0, -1, 0, height, 0, distance],
     )
