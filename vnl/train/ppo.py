@@ -9,6 +9,7 @@ checkpoint is kept, and the run directory says how to use it.
 from __future__ import annotations
 
 import contextlib
+import os
 import dataclasses
 import functools
 import signal
@@ -86,10 +87,13 @@ def _stop_on_signals(flag: threading.Event, say: Callable[[str], None]) -> Itera
         if flag.is_set() and signum == signal.SIGINT:
             raise KeyboardInterrupt
         flag.set()
-        say(
+        # os.write, not print: a print from a signal handler can hit Python's "reentrant call"
+        # error when the signal lands while the main thread is writing to the same stream.
+        msg = (
             f"\n[vnl] {signal.Signals(signum).name}: stopping at the next evaluation "
-            "(Ctrl-C again to abort now; checkpoints already written are kept)"
+            "(Ctrl-C again to abort now; checkpoints already written are kept)\n"
         )
+        os.write(2, msg.encode())
 
     old = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
