@@ -17,7 +17,6 @@ from vnl.policy import load_run, make_policy_fn
 from vnl.train import config as train_config
 from vnl.train import ppo
 
-
 SETTINGS = {
     "ppo": {
         "num_timesteps": 60_000,

@@ -9,9 +9,9 @@ checkpoint is kept, and the run directory says how to use it.
 from __future__ import annotations
 
 import contextlib
-import os
 import dataclasses
 import functools
+import os
 import signal
 import threading
 import time
@@ -77,7 +77,7 @@ def prepare_run_dir(run_dir: Path, config: TrainConfig) -> None:
 
 
 @contextlib.contextmanager
-def _stop_on_signals(flag: threading.Event, say: Callable[[str], None]) -> Iterator[None]:
+def _stop_on_signals(flag: threading.Event) -> Iterator[None]:
     """SIGINT/SIGTERM set `flag` (a second Ctrl-C interrupts at once)."""
     if threading.current_thread() is not threading.main_thread():
         yield
@@ -192,7 +192,7 @@ def train(
     interrupted = False
     params = None
     try:
-        with _stop_on_signals(stop, say):
+        with _stop_on_signals(stop):
             _, params, _ = ppo.train(
                 environment=env,
                 num_timesteps=p.num_timesteps,
