@@ -18,7 +18,6 @@ from pathlib import Path
 import jax
 
 from vnl.envs import registry
-from vnl.envs.wrappers import wrap_for_training
 from vnl.train import config as train_config
 from vnl.train import ppo
 
@@ -27,29 +26,11 @@ def brax_direct(cfg: train_config.TrainConfig) -> list[float]:
     from brax.training.agents.ppo import train as brax_ppo
 
     env = registry.entry(cfg.env).factory(cfg.resolved_env_config())
-    p = cfg.ppo
     sps: list[float] = []
     brax_ppo.train(
         environment=env,
-        num_timesteps=p.num_timesteps,
-        wrap_env_fn=wrap_for_training,
-        num_envs=p.num_envs,
-        episode_length=cfg.episode_length(),
-        learning_rate=p.learning_rate,
-        entropy_cost=p.entropy_cost,
-        discounting=p.discounting,
-        unroll_length=p.unroll_length,
-        batch_size=p.batch_size,
-        num_minibatches=p.num_minibatches,
-        num_updates_per_batch=p.num_updates_per_batch,
-        normalize_observations=p.normalize_observations,
-        reward_scaling=p.reward_scaling,
-        network_factory=ppo.network_factory(cfg.network),
-        seed=cfg.seed,
-        num_evals=p.num_evals,
-        num_eval_envs=p.num_eval_envs,
-        deterministic_eval=p.deterministic_eval,
         progress_fn=lambda step, m: sps.append(float(m.get("training/sps", 0.0))),
+        **ppo.brax_kwargs(cfg),
     )
     return [s for s in sps if s > 0]
 

@@ -19,7 +19,7 @@ from vnl.train import ppo
 
 SETTINGS = {
     "ppo": {
-        "num_timesteps": 60_000,
+        "num_timesteps": 100_000,
         "num_envs": 64,
         "batch_size": 64,
         "num_minibatches": 4,
@@ -32,7 +32,8 @@ SETTINGS = {
         "reward_scaling": 1.0,
         "discounting": 0.95,
     },
-    "network": {"policy_hidden_layer_sizes": [16, 16], "value_hidden_layer_sizes": [32, 32]},
+    # Brax's default network sizes: with a [16, 16] policy PPO did not improve on this task.
+    "network": {"policy_hidden_layer_sizes": [32, 32, 32, 32], "value_hidden_layer_sizes": [256, 256, 256, 256, 256]},
     "log": {"video": False, "progress": False},
 }
 
@@ -57,10 +58,11 @@ def test_ppo_learns_tiny_env(trained):
     records = metrics_io.read(out / "metrics.jsonl")
     assert [r["step"] for r in records] == sorted(r["step"] for r in records)
     first, last = records[0]["eval/episode_reward"], records[-1]["eval/episode_reward"]
-    # Staying put costs -40 (1 m away for 40 steps); reaching the target in ~10 steps gives > -15.
-    assert last > -15, (first, last)
+    # Over the 32-step episodes of the tiny preset: zero action scores about -26, always pushing
+    # -24, a hand-tuned PD controller -9.4. Learning must clearly beat the naive policies.
+    assert last > -17, (first, last)
     assert last > first + 8, (first, last)
-    assert result.steps >= 60_000 and not result.interrupted
+    assert result.steps >= 100_000 and not result.interrupted
 
 
 def test_run_directory_contents(trained):
@@ -146,3 +148,24 @@ def test_metrics_reader_ignores_torn_last_line(tmp_path):
     p = tmp_path / "m.jsonl"
     p.write_text(json.dumps({"step": 1}) + "\n" + '{"step": 2, "eval/epi')
     assert metrics_io.read(p) == [{"step": 1}]
+
+
+def test_stop_during_first_evaluation_still_leaves_a_checkpoint(tmp_path, monkeypatch):
+    """A SIGTERM that lands during the step-0 evaluation stops after checkpoint 0 is written."""
+    cfg = train_config.build("test_point", "tiny", file_values=SETTINGS)
+    import threading
+    import types
+
+    def set_event():  # the stop flag is already set when training starts
+        event = threading.Event()
+        event.set()
+        return event
+
+    fake = types.SimpleNamespace(
+        Event=set_event, current_thread=threading.current_thread, main_thread=threading.main_thread
+    )
+    monkeypatch.setattr(ppo, "threading", fake)
+    result = ppo.train(cfg, tmp_path / "run", say=lambda s: None)
+    assert result.interrupted
+    assert checkpoint.steps(tmp_path / "run") == [0]
+    assert [r["step"] for r in metrics_io.read(tmp_path / "run" / "metrics.jsonl")] == [0]

@@ -57,6 +57,38 @@ def network_factory(net: NetworkConfig) -> Callable[..., Any]:
     )
 
 
+def brax_kwargs(config: TrainConfig) -> dict[str, Any]:
+    """Keyword arguments of `brax.training.agents.ppo.train.train` for `config` (all but the
+    environment and the callbacks)."""
+    from vnl.envs.wrappers import wrap_for_training
+
+    p = config.ppo
+    return dict(
+        num_timesteps=p.num_timesteps,
+        wrap_env_fn=wrap_for_training,
+        num_envs=p.num_envs,
+        episode_length=config.episode_length(),
+        action_repeat=p.action_repeat,
+        learning_rate=p.learning_rate,
+        entropy_cost=p.entropy_cost,
+        discounting=p.discounting,
+        unroll_length=p.unroll_length,
+        batch_size=p.batch_size,
+        num_minibatches=p.num_minibatches,
+        num_updates_per_batch=p.num_updates_per_batch,
+        normalize_observations=p.normalize_observations,
+        reward_scaling=p.reward_scaling,
+        clipping_epsilon=p.clipping_epsilon,
+        gae_lambda=p.gae_lambda,
+        max_grad_norm=p.max_grad_norm,
+        network_factory=network_factory(config.network),
+        seed=config.seed,
+        num_evals=max(p.num_evals, 2),
+        num_eval_envs=p.num_eval_envs,
+        deterministic_eval=p.deterministic_eval,
+    )
+
+
 def prepare_run_dir(run_dir: Path, config: TrainConfig) -> None:
     """Creates `run_dir` and writes config.yaml; fails before any compile if it cannot.
 
@@ -141,7 +173,6 @@ def train(
     from brax.training.agents.ppo import train as ppo
 
     from vnl.envs import registry
-    from vnl.envs.wrappers import wrap_for_training
 
     run_dir = Path(run_dir)
     devices = jax.local_device_count()
@@ -175,14 +206,18 @@ def train(
                 + f"{record['env_steps_per_sec']:7,.0f} steps/s | "
                 f"elapsed {_fmt_time(elapsed)} | ETA {eta}"
             )
-        if stop.is_set():
+        # Brax calls policy_params_fn (our checkpoint) after the step-0 evaluation and before every
+        # later one: stopping before the first checkpoint would leave nothing to continue from.
+        if stop.is_set() and checkpoint.steps(run_dir):
             raise _StopRequested
 
     def policy_params_fn(step: int, make_policy: Any, params: Any) -> None:
         n = n_params_calls[0]
         n_params_calls[0] += 1
-        if n % config.log.checkpoint_every == 0 or step >= p.num_timesteps:
+        if n % config.log.checkpoint_every == 0 or step >= p.num_timesteps or stop.is_set():
             checkpoint.save(run_dir, step, params, keep=config.log.keep_checkpoints)
+        if stop.is_set() and n == 0:
+            raise _StopRequested  # stop requested during the step-0 evaluation: checkpoint 0 exists
 
     say(
         f"[vnl] training {config.env} (preset {config.preset}) on {devices} "
@@ -195,30 +230,9 @@ def train(
         with _stop_on_signals(stop):
             _, params, _ = ppo.train(
                 environment=env,
-                num_timesteps=p.num_timesteps,
-                wrap_env_fn=wrap_for_training,
-                num_envs=p.num_envs,
-                episode_length=config.episode_length(),
-                action_repeat=p.action_repeat,
-                learning_rate=p.learning_rate,
-                entropy_cost=p.entropy_cost,
-                discounting=p.discounting,
-                unroll_length=p.unroll_length,
-                batch_size=p.batch_size,
-                num_minibatches=p.num_minibatches,
-                num_updates_per_batch=p.num_updates_per_batch,
-                normalize_observations=p.normalize_observations,
-                reward_scaling=p.reward_scaling,
-                clipping_epsilon=p.clipping_epsilon,
-                gae_lambda=p.gae_lambda,
-                max_grad_norm=p.max_grad_norm,
-                network_factory=network_factory(config.network),
-                seed=config.seed,
-                num_evals=max(p.num_evals, 2),
-                num_eval_envs=p.num_eval_envs,
-                deterministic_eval=p.deterministic_eval,
                 progress_fn=progress_fn,
                 policy_params_fn=policy_params_fn,
+                **brax_kwargs(config),
             )
     except _StopRequested:
         interrupted = True
