@@ -79,11 +79,9 @@ def test_run_directory_contents(trained):
         "eval/avg_episode_length",
     ):
         assert key in rec, key
-    saved = train_config.TrainConfig  # config.yaml reloads to the same resolved config
     from vnl.policy import read_config
 
     assert read_config(out) == train_config.resolved(cfg)
-    assert isinstance(saved, type)
 
 
 def test_checkpoint_roundtrip_gives_identical_actions(trained):

@@ -215,9 +215,6 @@ def cmd_render(args: argparse.Namespace, gl: str | None) -> int:
     from vnl.rollout import policy_video
 
     run = load_run(args.run_dir, step=args.step)
-    from vnl.io import video
-
-    video.resolve_camera(run.env.mj_model, args.camera)
     name = f"render_{args.camera or 'side'}.mp4".replace("/", "_")
     out = args.out or str(run.run_dir / name)
     path, n = policy_video(run.env, run.policy, out, args.camera, args.steps, args.width, args.height, args.seed)
