@@ -9,7 +9,7 @@ from typing import Any
 from vnl import config as config_lib
 from vnl.envs.base import Env
 from vnl.errors import VnlError
-from vnl.tasks import run
+from vnl.tasks import escape_bowl, run, run_gaps
 
 
 @dataclasses.dataclass(frozen=True)
@@ -30,7 +30,43 @@ _REGISTRY: dict[str, Entry] = {
         run.HUMANOID_RUN,
         "The notebooks' MJX humanoid runs forward on a flat floor.",
     ),
+    "rodent_run": Entry(
+        run.Run,
+        run.RODENT_RUN,
+        "dm_control's rat runs forward on a flat floor.",
+    ),
+    "rodent_run_gaps": Entry(
+        run_gaps.RunGaps,
+        run_gaps.RODENT_RUN_GAPS,
+        "The rat runs at 1 m/s through a corridor of platforms and gaps redrawn every episode.",
+    ),
+    "rodent_escape_bowl": Entry(
+        escape_bowl.EscapeBowl,
+        escape_bowl.RODENT_ESCAPE_BOWL,
+        "The rat climbs out of a bumpy heightfield bowl (reward: upright x distance).",
+    ),
+    "ant_run_gaps": Entry(
+        run_gaps.RunGaps,
+        run_gaps.ANT_RUN_GAPS,
+        "The ant runs through a corridor of platforms and gaps scaled to its size.",
+    ),
+    "ant_escape_bowl": Entry(
+        escape_bowl.EscapeBowl,
+        escape_bowl.ANT_ESCAPE_BOWL,
+        "The ant climbs out of the bumpy bowl.",
+    ),
+    # Tasks for any walker: set walker=ant|rodent or walker_xml=path/to/model.xml, root_body=...
+    "run": Entry(run.Run, run.RODENT_RUN, "Run task for any walker (walker=..., or walker_xml=FILE root_body=NAME)."),
+    "run_gaps": Entry(
+        run_gaps.RunGaps, run_gaps.RODENT_RUN_GAPS, "Gaps corridor task for any walker (walker_xml=...)."
+    ),
+    "escape_bowl": Entry(
+        escape_bowl.EscapeBowl, escape_bowl.RODENT_ESCAPE_BOWL, "Bowl escape task for any walker (walker_xml=...)."
+    ),
 }
+
+ALIASES = {"run": "rodent_run", "run_gaps": "rodent_run_gaps", "escape_bowl": "rodent_escape_bowl"}
+"""Generic task names whose defaults equal a walker-specific env's (tests build each once)."""
 
 
 def register(name: str, factory: Callable[[Any], Env], default_config: Any, description: str = "") -> None:

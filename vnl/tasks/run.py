@@ -20,52 +20,36 @@ from typing import Literal
 
 import jax
 import jax.numpy as jp
-import mujoco
 from mujoco import mjx
 
 from vnl.arenas import floor
-from vnl.envs.base import Env, State
+from vnl.envs.base import State
 from vnl.errors import VnlError
-from vnl.walkers import ant, humanoid
-from vnl.walkers.base import Walker
+from vnl.tasks.base import WalkerTask, WalkerTaskConfig, build_walker, compile_world, spawn_height
 
 
 @dataclasses.dataclass(frozen=True)
-class RunConfig:
-    """Configuration of the run task. Times in seconds, lengths in metres."""
+class RunConfig(WalkerTaskConfig):
+    """Configuration of the run task. Times in seconds, lengths in metres.
 
-    walker: Literal["ant", "humanoid"] = "ant"
-    episode_length: int = 1000  # control steps per episode
-    physics_timestep: float = 0.01
-    n_substeps: int = 5  # physics steps per control step
-    solver: Literal["newton", "cg"] = "newton"
-    iterations: int = 1
-    ls_iterations: int = 4
-    cone: Literal["pyramidal", "elliptic"] = "pyramidal"
+    `observation="state"` is qpos[2:] + qvel (+ the notebooks' cinert, cvel, qfrc_actuator for
+    the humanoid); `"proprioception"` is dm_control's walker proprioception (`vnl list -v`).
+    """
+
+    observation: Literal["state", "proprioception"] = "state"
     forward_reward_weight: float = 1.0
     healthy_reward: float = 1.0
     ctrl_cost_weight: float = 0.5
     healthy_z_range: tuple[float, float] = (0.26, 1.0)
     healthy_min_upright: float = 0.0  # cos(max tilt); -1 disables the check
     terminate_when_unhealthy: bool = True
-    reset_noise_scale: float = 0.1
-    self_collision: bool = False  # ant only: leg-leg contacts
-    floor_contacts: Literal["all", "feet_and_torso"] = "feet_and_torso"  # ant only
-    floor_size: float = 50.0  # rendered half-extent of the floor (ant only)
+    floor_size: float = 50.0  # rendered half-extent of the floor
 
     def validate(self) -> None:
-        for key in ("episode_length", "n_substeps", "iterations", "ls_iterations"):
-            if getattr(self, key) < 1:
-                raise VnlError(f"{key} must be >= 1, got {getattr(self, key)}")
-        if not self.physics_timestep > 0:
-            raise VnlError(f"physics_timestep must be > 0, got {self.physics_timestep}")
-        if self.physics_timestep > 0.05:
-            raise VnlError(f"physics_timestep {self.physics_timestep} s is too large to be stable; use <= 0.05")
+        super().validate()
         lo, hi = self.healthy_z_range
         if not lo < hi:
             raise VnlError(f"healthy_z_range must be (low, high) with low < high, got {(lo, hi)}")
-        if self.reset_noise_scale < 0:
-            raise VnlError(f"reset_noise_scale must be >= 0, got {self.reset_noise_scale}")
         if self.ctrl_cost_weight < 0:
             raise VnlError(f"ctrl_cost_weight must be >= 0, got {self.ctrl_cost_weight}")
         if not -1.0 <= self.healthy_min_upright <= 1.0:
@@ -99,46 +83,33 @@ HUMANOID_RUN = RunConfig(
 )
 """`humanoid_run` defaults: the seed notebooks' MJX humanoid (DESIGN.md §5)."""
 
+RODENT_RUN = RunConfig(
+    walker="rodent",
+    observation="proprioception",
+    episode_length=500,
+    physics_timestep=0.002,
+    n_substeps=10,
+    iterations=4,
+    ls_iterations=4,
+    forward_reward_weight=5.0,
+    healthy_reward=1.0,
+    ctrl_cost_weight=0.01,
+    healthy_z_range=(0.025, 0.5),
+    healthy_min_upright=0.0,
+    reset_noise_scale=0.01,
+)
+"""`rodent_run` defaults: dm_control's rat on a flat floor, 20 ms control steps, 10 s episodes.
 
-def _build_walker(config: RunConfig) -> Walker:
-    if config.walker == "ant":
-        return ant.build(self_collision=config.self_collision, floor_contacts=config.floor_contacts)
-    return humanoid.build()
-
-
-def build_model(config: RunConfig) -> mujoco.MjModel:
-    """Compiles the world for `config` with its solver options (host side, once)."""
-    walker = _build_walker(config)
-    arena = None if walker.standalone else floor.build(config.floor_size)
-    model = floor.compile_world(walker, arena)
-    model.opt.timestep = config.physics_timestep
-    model.opt.solver = {
-        "newton": mujoco.mjtSolver.mjSOL_NEWTON,
-        "cg": mujoco.mjtSolver.mjSOL_CG,
-    }[config.solver]
-    model.opt.iterations = config.iterations
-    model.opt.ls_iterations = config.ls_iterations
-    model.opt.cone = {
-        "pyramidal": mujoco.mjtCone.mjCONE_PYRAMIDAL,
-        "elliptic": mujoco.mjtCone.mjCONE_ELLIPTIC,
-    }[config.cone]
-    # Observations are computed from the state directly; skipping MuJoCo's sensor stage saves
-    # the ant's 8 rangefinder ray casts and 46 frame sensors per physics step.
-    model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_SENSOR
-    return model
+Physics: 2 ms × 10 with 4 Newton iterations. The rat weighs 0.34 kg with stiff position
+actuators; with 1 Newton iteration it blows up within 0.1 s at 1 or 2 ms (MuJoCo C and MJX
+alike); 2 iterations survive zero action but not random actions at 2 ms; 4 match the
+100-iteration reference (torso height after 2 s of zero action 0.053 m vs 0.051 m).
+Rewards: a rat runs at most ~1 m/s, so forward velocity is weighted 5 against a healthy bonus
+of 1; 36 actuators make |a|² up to 36, so the control cost weight is 0.01.
+"""
 
 
-def body_id(model: mujoco.MjModel, name: str) -> int:
-    """Id of the body called `name` or, for attached walkers, `walker/name`."""
-    for candidate in (name, f"walker/{name}"):
-        i = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, candidate)
-        if i >= 0:
-            return i
-    names = [model.body(i).name for i in range(model.nbody)]
-    raise VnlError(f"no body named {name!r} in the model; bodies are: {', '.join(names)}")
-
-
-class Run(Env):
+class Run(WalkerTask):
     """Run forward on a floor (`ant_run`, `humanoid_run`).
 
     Observation (flat, float32):
@@ -148,24 +119,22 @@ class Run(Env):
     """
 
     def __init__(self, config: RunConfig) -> None:
-        model = build_model(config)
-        super().__init__(config, model, config.n_substeps)
-        self._walker_name = config.walker
-        self._root = body_id(model, "torso")
-        self._init_qpos = jp.asarray(model.qpos0, dtype=jp.float32)
-        # The free joint's x/y are excluded from the observation (translation invariance).
+        walker = build_walker(config)
+        arena = None if walker.standalone else floor.build(config.floor_size)
+        model, report = compile_world(walker, arena)
+        super().__init__(config, walker, model, report)
+        # The free joint's x/y are excluded from the state observation (translation invariance).
         self._obs_qpos_start = 2
-
-    @property
-    def root_body_id(self) -> int:
-        """Body id of the walker's root (torso); its subtree is the whole animal."""
-        return self._root
+        self._spawn_z = None if walker.standalone else spawn_height(model)
 
     def reset(self, rng: jax.Array) -> State:
         cfg: RunConfig = self._config
         rng, k1, k2 = jax.random.split(rng, 3)
         noise = cfg.reset_noise_scale
-        qpos = self._init_qpos + jax.random.uniform(k1, (self._mj_model.nq,), minval=-noise, maxval=noise)
+        if self._walker.standalone:
+            qpos = self._init_qpos + jax.random.uniform(k1, (self._mj_model.nq,), minval=-noise, maxval=noise)
+        else:
+            qpos = self.initial_qpos(k1, jp.array([0.0, 0.0, self._spawn_z]))
         qvel = jax.random.uniform(k2, (self._mj_model.nv,), minval=-noise, maxval=noise)
         data = mjx.make_data(self._mjx_model).replace(qpos=qpos, qvel=qvel)
         data = mjx.forward(self._mjx_model, data)
@@ -227,15 +196,19 @@ class Run(Env):
         return ok.astype(jp.float32)
 
     def observation_layout(self) -> list[tuple[str, int]]:
+        if self._config.observation == "proprioception":
+            return self.proprioception_layout()
         m = self._mj_model
         layout = [("qpos[2:]", m.nq - 2), ("qvel", m.nv)]
-        if self._walker_name == "humanoid":
+        if self._walker.name == "humanoid":
             layout += [("cinert[1:]", (m.nbody - 1) * 10), ("cvel[1:]", (m.nbody - 1) * 6), ("qfrc_actuator", m.nv)]
         return layout
 
     def _obs(self, data: mjx.Data) -> jax.Array:
+        if self._config.observation == "proprioception":
+            return self.proprioception(data)
         parts = [data.qpos[self._obs_qpos_start :], data.qvel]
-        if self._walker_name == "humanoid":
+        if self._walker.name == "humanoid":
             parts += [
                 data._impl.cinert[1:].ravel(),  # MJX keeps cinert in its impl data
                 data.cvel[1:].ravel(),

@@ -1,0 +1,109 @@
+"""A bumpy bowl: dm_control's `locomotion.arenas.Bowl` heightfield, built for MJX.
+
+The terrain is dm_control's: a sinusoidal bowl `0.5 - cos(2π r)/2` (r the normalised radius,
+clipped to [0.1, 1]) times smooth random bumps (uniform in [smoothness, 1] on a grid of
+`bump_scale` m, upsampled with `scipy.ndimage.zoom`), on a `nrow × nrow` heightfield of
+half-size `half_size` and height `height`, with a ground plane around it.
+
+MJX collides heightfields with spheres, capsules, boxes and meshes, not with ellipsoids or
+cylinders: the rodent's ellipsoids get capsule proxies (`vnl.walkers.mjx_compat`).
+
+dm_control redraws the bumps every episode; here heightfield data is a model constant, so the
+bumps are drawn once per env from `terrain_seed` (the spawn heading varies per episode).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import mujoco
+import numpy as np
+from dm_control import mjcf
+from scipy import ndimage
+
+
+@dataclasses.dataclass(frozen=True)
+class BowlParams:
+    """Bowl geometry (m). Defaults are dm_control's `Bowl` as used by `rodent_escape_bowl`."""
+
+    half_size: float = 6.0  # heightfield half-extent: the escape radius
+    height: float = 0.5  # heightfield elevation scale
+    base: float = 0.1  # heightfield base thickness
+    nrow: int = 201
+    ground_size: float = 20.0  # ground plane half-extent
+    smoothness: float = 0.5  # 0: maximally bumpy, 1: smooth
+    bump_scale: float = 0.2  # spatial scale of bumps
+    terrain_seed: int = 0
+
+
+def terrain(params: BowlParams) -> np.ndarray:
+    """Heightfield elevations in [0, 1], shape (nrow, nrow) (dm_control's formula)."""
+    res = params.nrow
+    row, col = np.ogrid[-1 : 1 : res * 1j, -1 : 1 : res * 1j]
+    radius = np.clip(np.sqrt(col**2 + row**2), 0.1, 1)
+    bowl_shape = 0.5 - np.cos(2 * np.pi * radius) / 2
+    bump_res = int(2 * params.half_size / params.bump_scale)
+    bumps = np.random.RandomState(params.terrain_seed).uniform(params.smoothness, 1, (bump_res, bump_res))
+    smooth = ndimage.zoom(bumps, res / float(bump_res))
+    return bowl_shape * smooth[:res, :res]
+
+
+def build(params: BowlParams) -> mjcf.RootElement:
+    """The bowl's MJCF; call `write_terrain` on the compiled model to fill the heightfield."""
+    root = mjcf.RootElement(model="bowl")
+    root.visual.headlight.set_attributes(ambient=[0.4, 0.4, 0.4], diffuse=[0.8, 0.8, 0.8], specular=[0.1, 0.1, 0.1])
+    root.asset.add(
+        "texture", type="skybox", builtin="gradient", rgb1=[0.4, 0.6, 0.8], rgb2=[0, 0, 0], width=100, height=600
+    )
+    root.asset.add(
+        "texture",
+        name="grid",
+        type="2d",
+        builtin="checker",
+        rgb1=[0.2, 0.3, 0.4],
+        rgb2=[0.25, 0.35, 0.45],
+        width=100,
+        height=100,
+    )
+    root.asset.add("material", name="ground", texture="grid", texrepeat=[40, 40], texuniform=False)
+    s = params.half_size
+    root.asset.add(
+        "hfield", name="terrain", nrow=params.nrow, ncol=params.nrow, size=[s, s, params.height, params.base]
+    )
+    root.worldbody.add(
+        "geom",
+        name="terrain",
+        type="hfield",
+        hfield="terrain",
+        pos=[0, 0, -0.01],
+        rgba=[0.2, 0.3, 0.4, 1],
+        material="ground",
+    )
+    root.worldbody.add(
+        "geom",
+        name="groundplane",
+        type="plane",
+        size=[params.ground_size, params.ground_size, 0.5],
+        rgba=[0.2, 0.3, 0.4, 1],
+        material="ground",
+    )
+    root.worldbody.add("camera", name="overview", pos=[0, -1.6 * s, 1.2 * s], xyaxes=[1, 0, 0, 0, 0.6, 0.8])
+    return root
+
+
+def write_terrain(model: mujoco.MjModel, params: BowlParams) -> None:
+    """Fills the compiled model's heightfield (as dm_control does after compiling)."""
+    i = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_HFIELD, "terrain")
+    adr, n = model.hfield_adr[i], model.hfield_nrow[i] * model.hfield_ncol[i]
+    model.hfield_data[adr : adr + n] = terrain(params).ravel()
+
+
+def height_at(params: BowlParams, x: float, y: float) -> float:
+    """Terrain height (m) at world (x, y), nearest grid point (0 outside the heightfield)."""
+    s = params.half_size
+    if abs(x) > s or abs(y) > s:
+        return 0.0
+    t = terrain(params)
+    c = int(round((x + s) / (2 * s) * (params.nrow - 1)))
+    r = int(round((y + s) / (2 * s) * (params.nrow - 1)))
+    return float(t[r, c] * params.height - 0.01)

@@ -1,0 +1,177 @@
+"""A corridor of platforms separated by gaps, redrawn every episode inside jit.
+
+dm_control's `GapsCorridor` rebuilds its platforms in Python at every episode; a compiled MJX
+model cannot change its geoms. Here the layout is data, not model:
+
+- `sample_layout(rng, params)` draws a whole corridor in JAX: platform lengths
+  U(platform_length) and gaps U(gap_length), as dm_control does, after a start region of
+  `start_length` (dm_control: one 6 m platform) filled with gapless platforms.
+- The world holds a small window of platforms as mocap boxes. `place_window` puts them, every
+  control step, at the platforms around the walker (`behind` before the one under it, `ahead`
+  after it), so MJX only collides the walker with a few boxes instead of ~60. Further
+  `visual_ahead` platforms are visual-only boxes (no collision cost) so renders and cameras see
+  the corridor ahead.
+- A platform of any length in [min, max] is the union of `pieces` boxes of length `min`
+  (`pieces = ceil(max / min)`), placed from its start and its end: box sizes are model
+  constants, box positions are not.
+
+The top of every platform is at z = 0. There is no floor: a walker that falls into a gap or off
+the corridor's side keeps falling, and the task ends the episode below `terminate_at_height`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jp
+import numpy as np
+from dm_control import mjcf
+
+THICKNESS = 0.16  # platform half-height (dm_control's _WALL_THICKNESS)
+HIDDEN_Z = -50.0  # where unused window boxes wait
+
+
+@dataclasses.dataclass(frozen=True)
+class GapsParams:
+    """Corridor geometry (m). Defaults are dm_control's `rodent_run_gaps`."""
+
+    corridor_width: float = 2.0
+    corridor_length: float = 40.0
+    platform_length: tuple[float, float] = (0.4, 0.8)  # uniform range
+    gap_length: tuple[float, float] = (0.05, 0.2)  # uniform range
+    start_length: float = 6.0  # gapless start region; the walker spawns in it
+    behind: int = 1  # collidable platforms kept behind the one under the walker
+    ahead: int = 2  # ... and ahead of it
+    visual_ahead: int = 8  # further platforms drawn (visual only)
+    max_geom_pairs: int = 16  # MJX broad phase: collide only the closest pairs per geom-type pair
+
+    @property
+    def pieces(self) -> int:
+        return max(1, math.ceil(self.platform_length[1] / self.platform_length[0] - 1e-9))
+
+    @property
+    def max_platforms(self) -> int:
+        """Upper bound on platforms in one corridor (all of minimum length, no gaps)."""
+        return int(math.ceil((self.corridor_length + self.platform_length[1]) / self.platform_length[0])) + 1
+
+    @property
+    def window(self) -> int:
+        return self.behind + 1 + self.ahead
+
+
+@dataclasses.dataclass(frozen=True)
+class Layout:
+    """One corridor: platform `start` and `length`, shape (max_platforms,); unused ones have
+    start = +inf."""
+
+    start: jax.Array
+    length: jax.Array
+
+
+jax.tree_util.register_dataclass(Layout, data_fields=["start", "length"], meta_fields=[])
+
+
+def build(params: GapsParams, rgba: tuple[float, ...] = (0.5, 0.5, 0.5, 1.0)) -> mjcf.RootElement:
+    """The corridor's MJCF: headlight, skybox and the window of mocap platform boxes."""
+    root = mjcf.RootElement(model="gaps_corridor")
+    root.visual.headlight.set_attributes(ambient=[0.4, 0.4, 0.4], diffuse=[0.8, 0.8, 0.8], specular=[0.1, 0.1, 0.1])
+    root.visual.map.znear = 0.0005
+    root.asset.add(
+        "texture", type="skybox", builtin="gradient", rgb1=[0.4, 0.6, 0.8], rgb2=[0, 0, 0], width=100, height=600
+    )
+    root.asset.add(
+        "texture",
+        name="grid",
+        type="2d",
+        builtin="checker",
+        rgb1=[0.35, 0.38, 0.42],
+        rgb2=[0.45, 0.48, 0.52],
+        width=100,
+        height=100,
+    )
+    root.asset.add("material", name="platform", texture="grid", texrepeat=[4, 4], texuniform=True)
+    if params.max_geom_pairs > 0:
+        # MJX reads this custom numeric: per geom-type group (e.g. capsule-box), only the
+        # `max_geom_pairs` pairs with the closest bounding spheres go through the (expensive)
+        # narrow phase. Planes and heightfields are never culled.
+        root.custom.add("numeric", name="max_geom_pairs", data=[params.max_geom_pairs])
+    half = [params.platform_length[0] / 2, params.corridor_width / 2, THICKNESS]
+    n_collide = params.window * params.pieces
+    n_visual = params.visual_ahead * params.pieces
+    for i in range(n_collide + n_visual):
+        body = root.worldbody.add("body", name=f"platform_{i}", mocap=True, pos=[0, 0, HIDDEN_Z])
+        collide = i < n_collide
+        body.add(
+            "geom",
+            name=f"platform_{i}",
+            type="box",
+            size=half,
+            material="platform",
+            rgba=rgba,
+            contype=0,
+            conaffinity=1 if collide else 0,
+            group=0,
+        )
+    # A camera looking down the corridor from behind the start.
+    root.worldbody.add("camera", name="corridor", pos=[-1.0, 0, 1.0], xyaxes=[0, -1, 0, 0.5, 0, 1])
+    return root
+
+
+def sample_layout(rng: jax.Array, params: GapsParams) -> Layout:
+    """Draws a corridor: gapless platforms up to `start_length`, then platforms and gaps."""
+    n = params.max_platforms
+    k1, k2 = jax.random.split(rng)
+    length = jax.random.uniform(k1, (n,), minval=params.platform_length[0], maxval=params.platform_length[1])
+    gap = jax.random.uniform(k2, (n,), minval=params.gap_length[0], maxval=params.gap_length[1])
+    # Platform i starts after platforms 0..i-1 and their gaps; no gap while inside the start region.
+    end_without_gaps = jp.cumsum(length)
+    in_start = jp.concatenate([jp.array([True]), end_without_gaps[:-1] < params.start_length])
+    gap = jp.where(in_start, 0.0, gap)
+    # gap[i] precedes platform i.
+    start = jp.concatenate([jp.zeros(1), jp.cumsum(length[:-1] + gap[1:])])
+    start = jp.where(start < params.corridor_length, start, jp.inf)
+    return Layout(start=start, length=length)
+
+
+def platform_index(layout: Layout, x: jax.Array) -> jax.Array:
+    """Index of the last platform starting at or before `x` (0 if none)."""
+    return jp.maximum(jp.searchsorted(layout.start, x, side="right") - 1, 0)
+
+
+def on_platform(layout: Layout, x: jax.Array) -> jax.Array:
+    """Whether x lies over a platform (not over a gap or past the corridor's end)."""
+    i = platform_index(layout, x)
+    return (x >= layout.start[i]) & (x <= layout.start[i] + layout.length[i])
+
+
+def place_window(layout: Layout, x: jax.Array, params: GapsParams) -> jax.Array:
+    """Mocap positions of all window boxes for a walker at `x`, shape (n_boxes, 3).
+
+    Box order matches `build`: collidable slots (behind ... ahead), then visual slots; within a
+    slot, its `pieces` boxes.
+    """
+    n = params.max_platforms
+    first = platform_index(layout, x) - params.behind
+    slots = first + jp.arange(params.window + params.visual_ahead)
+    valid = (slots >= 0) & (slots < n)
+    idx = jp.clip(slots, 0, n - 1)
+    start, length = layout.start[idx], layout.length[idx]
+    valid = valid & jp.isfinite(start)
+    p = params.pieces
+    piece = params.platform_length[0]
+    # Piece k of p: spread from the platform's start to its end (first flush with the start,
+    # last flush with the end), so their union is exactly [start, start + length].
+    frac = jp.arange(p) / max(p - 1, 1)
+    centre = start[:, None] + piece / 2 + frac[None, :] * (length[:, None] - piece)
+    valid = jp.repeat(valid, p)
+    x_c = jp.where(valid, centre.reshape(-1), 0.0)
+    z_c = jp.where(valid, -THICKNESS, HIDDEN_Z)
+    return jp.stack([x_c, jp.zeros_like(x_c), z_c], axis=-1)
+
+
+def layout_numpy(layout: Layout) -> list[tuple[float, float]]:
+    """(start, end) of each platform, for tests and plots."""
+    s, ln = np.asarray(layout.start), np.asarray(layout.length)
+    return [(float(a), float(a + b)) for a, b in zip(s, ln, strict=True) if np.isfinite(a)]

@@ -1,0 +1,298 @@
+"""What every walker task shares: the physics/walker config, world compilation, proprioception.
+
+A task = a walker (ant, rodent, humanoid or a user's MJCF file) + an arena (PyMJCF), compiled
+once on the host into one `mujoco.MjModel` (with MJX collision proxies where needed), and pure
+JAX `reset`/`step` functions on top. Body, joint and actuator indices are resolved by name here.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Literal
+
+import jax
+import jax.numpy as jp
+import mujoco
+import numpy as np
+from dm_control import mjcf
+from mujoco import mjx
+
+from vnl.envs.base import Env
+from vnl.errors import VnlError
+from vnl.walkers import mjx_compat
+from vnl.walkers.base import Walker
+
+
+@dataclasses.dataclass(frozen=True)
+class WalkerTaskConfig:
+    """Fields shared by every walker task. Times in seconds, lengths in metres.
+
+    `walker_xml` (a path to an MJCF file) replaces the built-in `walker`; `root_body` names the
+    body whose subtree is the animal (forward velocity, height, egocentric frame).
+    """
+
+    walker: Literal["ant", "humanoid", "rodent"] = "ant"
+    walker_xml: str = ""
+    root_body: str = "torso"
+    episode_length: int = 1000  # control steps per episode
+    physics_timestep: float = 0.01
+    n_substeps: int = 5  # physics steps per control step
+    solver: Literal["newton", "cg"] = "newton"
+    iterations: int = 1
+    ls_iterations: int = 4
+    cone: Literal["pyramidal", "elliptic"] = "pyramidal"
+    reset_noise_scale: float = 0.1
+    self_collision: bool = False  # walker-walker contacts (ant, rodent)
+    contacts: Literal["all", "essential"] = "essential"  # which walker geoms touch the arena
+    rigid_tail: bool = True  # rodent: tail joints removed (faster MJX compile), see walkers.rodent
+    observation: Literal["state", "proprioception"] = "proprioception"
+
+    def validate(self) -> None:
+        for key in ("episode_length", "n_substeps", "iterations", "ls_iterations"):
+            if getattr(self, key) < 1:
+                raise VnlError(f"{key} must be >= 1, got {getattr(self, key)}")
+        if not self.physics_timestep > 0:
+            raise VnlError(f"physics_timestep must be > 0, got {self.physics_timestep}")
+        if self.physics_timestep > 0.05:
+            raise VnlError(f"physics_timestep {self.physics_timestep} s is too large to be stable; use <= 0.05")
+        if self.reset_noise_scale < 0:
+            raise VnlError(f"reset_noise_scale must be >= 0, got {self.reset_noise_scale}")
+        if self.walker_xml:
+            path = Path(self.walker_xml).expanduser()
+            if not path.is_file():
+                raise VnlError(f"walker_xml: no such file {str(path)!r}; give the path of an MJCF (.xml) model")
+        if not self.root_body:
+            raise VnlError("root_body must name a body of the walker, e.g. torso")
+
+
+def build_walker(config: WalkerTaskConfig) -> Walker:
+    """The walker named by `config` (`walker_xml` wins over `walker`)."""
+    from vnl.walkers import ant, from_file, humanoid, rodent
+
+    if config.walker_xml:
+        return from_file.build(config.walker_xml, config.root_body, self_collision=config.self_collision)
+    if config.walker == "ant":
+        return ant.build(self_collision=config.self_collision, contacts=config.contacts)
+    if config.walker == "rodent":
+        return rodent.build(
+            self_collision=config.self_collision, contacts=config.contacts, rigid_tail=config.rigid_tail
+        )
+    return humanoid.build()
+
+
+def compile_world(walker: Walker, arena: mjcf.RootElement | None) -> tuple[mujoco.MjModel, mjx_compat.Report]:
+    """Attaches `walker` to `arena` with a free joint, adds MJX collision proxies, compiles.
+
+    Standalone walkers (with their own world) are compiled as they are; `arena` must be None.
+    Body, geom and camera names of an attached walker get the prefix `walker/`.
+    """
+    if walker.standalone:
+        if arena is not None:
+            raise VnlError(
+                f"walker {walker.name!r} is a standalone world (it has its own floor); "
+                "it runs only on its own floor (use ant, rodent or walker_xml for other arenas)"
+            )
+        root = walker.mjcf_model
+    else:
+        if arena is None:
+            raise ValueError(f"walker {walker.name!r} needs an arena")
+        root = arena
+        frame = root.attach(walker.mjcf_model)
+        frame.add("freejoint")
+    try:
+        report = mjx_compat.make_compatible(root)
+        if walker.fuse_static and not walker.standalone:
+            root.compiler.fusestatic = True
+        model = mujoco.MjModel.from_xml_string(root.to_xml_string(), root.get_assets())
+    except ValueError as e:  # MuJoCo's compiler errors (bad user MJCF)
+        raise VnlError(f"the {walker.name!r} walker's world does not compile: {e}") from None
+    return model, report
+
+
+def set_physics_options(model: mujoco.MjModel, config: WalkerTaskConfig) -> None:
+    """Timestep, solver and cone from `config`; the sensor stage off (observations use the state)."""
+    model.opt.timestep = config.physics_timestep
+    model.opt.solver = {"newton": mujoco.mjtSolver.mjSOL_NEWTON, "cg": mujoco.mjtSolver.mjSOL_CG}[config.solver]
+    model.opt.iterations = config.iterations
+    model.opt.ls_iterations = config.ls_iterations
+    model.opt.cone = {"pyramidal": mujoco.mjtCone.mjCONE_PYRAMIDAL, "elliptic": mujoco.mjtCone.mjCONE_ELLIPTIC}[
+        config.cone
+    ]
+    # Observations are computed from the state directly; skipping MuJoCo's sensor stage saves
+    # e.g. the ant's 8 rangefinder ray casts and 46 frame sensors per physics step.
+    model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_SENSOR
+
+
+def body_id(model: mujoco.MjModel, name: str) -> int:
+    """Id of the body called `name` or, for attached walkers, `walker/name`."""
+    for candidate in (name, f"walker/{name}"):
+        i = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, candidate)
+        if i >= 0:
+            return i
+    names = [model.body(i).name for i in range(model.nbody)]
+    raise VnlError(f"no body named {name!r} in the model; bodies are: {', '.join(names)}")
+
+
+def spawn_height(model: mujoco.MjModel, x: float = 0.0, y: float = 0.0, mocap_pos: np.ndarray | None = None) -> float:
+    """Lowest root height (m, ±1 mm) at which the walker in its default pose at (x, y) touches
+    nothing.
+
+    dm_control raises the walker until it has no contacts (`_find_non_contacting_height`); we do
+    the same once on the host, for the default pose, with MuJoCo C: lower the walker from 3 m in
+    1 cm steps until it touches something, then raise it in 1 mm steps until it does not.
+    `mocap_pos` (nmocap, 3) places mocap bodies (e.g. platforms) first.
+    """
+    data = mujoco.MjData(model)
+    if mocap_pos is not None:
+        data.mocap_pos[:] = mocap_pos
+    free = _root_free_qposadr(model)
+
+    def touches(z: float) -> bool:
+        data.qpos[:] = model.qpos0
+        data.qpos[free : free + 3] = (x, y, z)
+        mujoco.mj_forward(model, data)
+        return data.ncon > 0
+
+    z = 3.0
+    while not touches(z):
+        z -= 0.01
+        if z < -1.0:
+            raise VnlError(f"no ground under the walker's spawn point ({x}, {y})")
+    while touches(z):
+        z += 0.001
+    return float(z)
+
+
+def _root_free_qposadr(model: mujoco.MjModel) -> int:
+    for j in range(model.njnt):
+        if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE:
+            return int(model.jnt_qposadr[j])
+    raise VnlError("the walker has no free joint")
+
+
+class WalkerTask(Env):
+    """Base of the walker tasks: indices resolved by name, proprioception, subtree velocities.
+
+    Subclasses set up their arena, call `super().__init__(config, walker, model)` and implement
+    `reset`/`step`.
+    """
+
+    def __init__(
+        self, config: WalkerTaskConfig, walker: Walker, model: mujoco.MjModel, report: mjx_compat.Report | None = None
+    ) -> None:
+        set_physics_options(model, config)
+        try:
+            super().__init__(config, model, config.n_substeps)
+        except NotImplementedError as e:
+            raise VnlError(f"MJX cannot simulate this model: {e}") from None
+        self._walker = walker
+        self.compat_report = report or mjx_compat.Report((), ())
+        self._root = body_id(model, walker.root_body)
+        self._init_qpos = jp.asarray(model.qpos0, dtype=jp.float32)
+        # Bodies of the walker: the subtree of the root body.
+        subtree = [b for b in range(model.nbody) if self._is_in_subtree(model, b, self._root)]
+        self._walker_bodies = np.asarray(subtree)
+        self._ends = np.asarray([body_id(model, n) for n in walker.end_effectors], dtype=int)
+        self._head = body_id(model, walker.head) if walker.head else None
+        # Joints of the walker other than free joints: observed angles and velocities.
+        qpos_idx, qvel_idx = [], []
+        for j in range(model.njnt):
+            if model.jnt_bodyid[j] not in subtree or model.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE:
+                continue
+            width = {mujoco.mjtJoint.mjJNT_BALL: (4, 3)}.get(model.jnt_type[j], (1, 1))
+            qpos_idx += range(model.jnt_qposadr[j], model.jnt_qposadr[j] + width[0])
+            qvel_idx += range(model.jnt_dofadr[j], model.jnt_dofadr[j] + width[1])
+        self._joint_qpos = np.asarray(qpos_idx, dtype=int)
+        self._joint_qvel = np.asarray(qvel_idx, dtype=int)
+        self._free_qpos = _root_free_qposadr(model) if not walker.standalone else None
+        mass = model.body_mass[self._walker_bodies]
+        self._subtree_mass_frac = jp.asarray(mass / mass.sum(), dtype=jp.float32)
+        self._body_rootid = np.asarray(model.body_rootid)
+
+    @staticmethod
+    def _is_in_subtree(model: mujoco.MjModel, body: int, root: int) -> bool:
+        while body > 0:
+            if body == root:
+                return True
+            body = int(model.body_parentid[body])
+        return root == 0
+
+    @property
+    def walker(self) -> Walker:
+        return self._walker
+
+    @property
+    def root_body_id(self) -> int:
+        """Body id of the walker's root (torso); its subtree is the whole animal."""
+        return self._root
+
+    # --- kinematic quantities (pure JAX) -------------------------------------------------------
+    def subtree_linvel(self, data: mjx.Data) -> jax.Array:
+        """Linear velocity of the root body's subtree centre of mass, world frame, shape (3,).
+
+        Equals MuJoCo's `subtree_linvel[root]` (mass-weighted body com velocities from `cvel`).
+        """
+        b = self._walker_bodies
+        ref = data.subtree_com[self._body_rootid[b]]
+        ang, lin = data.cvel[b, :3], data.cvel[b, 3:]
+        vel = lin + jp.cross(ang, data.xipos[b] - ref)
+        return self._subtree_mass_frac @ vel
+
+    def root_velocity_local(self, data: mjx.Data) -> tuple[jax.Array, jax.Array]:
+        """(linear, angular) velocity of the root body's frame in that frame, each (3,).
+
+        What a velocimeter and a gyro at the root body's origin would read.
+        """
+        r = self._root
+        rot = data.xmat[r]
+        ang, lin = data.cvel[r, :3], data.cvel[r, 3:]
+        lin = lin + jp.cross(ang, data.xpos[r] - data.subtree_com[self._body_rootid[r]])
+        return rot.T @ lin, rot.T @ ang
+
+    def egocentric(self, data: mjx.Data, points: jax.Array) -> jax.Array:
+        """World points (n, 3) -> the root body's frame, shape (n, 3)."""
+        return (points - data.xpos[self._root]) @ data.xmat[self._root]
+
+    # --- observations ---------------------------------------------------------------------------
+    def proprioception_layout(self) -> list[tuple[str, int]]:
+        m = self._mj_model
+        layout = [("joints_pos", len(self._joint_qpos)), ("joints_vel", len(self._joint_qvel))]
+        if m.ntendon:
+            layout += [("tendons_pos", m.ntendon), ("tendons_vel", m.ntendon)]
+        if m.na:
+            layout.append(("actuator_activation", m.na))
+        layout += [("body_height", 1)]
+        n_app = len(self._ends) + (self._head is not None)
+        if n_app:
+            layout.append(("appendages_pos", 3 * n_app))
+        layout += [("world_zaxis", 3), ("velocimeter", 3), ("gyro", 3)]
+        return layout
+
+    def proprioception(self, data: mjx.Data) -> jax.Array:
+        """dm_control-style proprioception, flat float32 (see `proprioception_layout`)."""
+        m = self._mj_model
+        parts = [data.qpos[self._joint_qpos], data.qvel[self._joint_qvel]]
+        if m.ntendon:
+            parts += [data.ten_length, data._impl.ten_velocity]  # MJX keeps ten_velocity in impl data
+        if m.na:
+            parts.append(data.act)
+        parts.append(data.xpos[self._root, 2:3])
+        apps = list(self._ends) + ([self._head] if self._head is not None else [])
+        if apps:
+            parts.append(self.egocentric(data, data.xpos[np.asarray(apps)]).ravel())
+        vel, gyro = self.root_velocity_local(data)
+        parts += [data.xmat[self._root, 2, :], vel, gyro]
+        return jp.concatenate(parts).astype(jp.float32)
+
+    # --- reset helpers ---------------------------------------------------------------------------
+    def initial_qpos(self, rng: jax.Array, position: jax.Array, yaw: jax.Array | float = 0.0) -> jax.Array:
+        """Default pose + uniform noise ±reset_noise_scale on joints, root placed at `position`
+        (3,) with heading `yaw` (rad). Shape (nq,)."""
+        noise = self._config.reset_noise_scale
+        qpos = self._init_qpos + jax.random.uniform(rng, (self._mj_model.nq,), minval=-noise, maxval=noise)
+        if self._free_qpos is not None:
+            a = self._free_qpos
+            quat = jp.array([jp.cos(yaw / 2), 0.0, 0.0, jp.sin(yaw / 2)])
+            qpos = qpos.at[a : a + 3].set(position).at[a + 3 : a + 7].set(quat)
+        return qpos

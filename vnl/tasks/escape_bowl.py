@@ -1,0 +1,154 @@
+"""Escape a bumpy bowl (dm_control's `Escape` task on `Bowl`, as in `rodent_escape_bowl`).
+
+Reward = upright × escape (dm_control `rewards.tolerance`, linear sigmoid, value 0 at margin):
+
+  escape  = tolerance(|p|, bounds=(R, inf), margin=R), p the world position of the walker's
+            head (rodent: the `head` site, as dm_control; other walkers: the root body), R the
+            terrain half-size `bowl.half_size`
+  upright = min over the root (and, for the rodent, the pelvis) of
+            tolerance(z-axis · world z, bounds=(cos 30°, inf), margin=1 + cos 30°)
+
+The product is `metrics["reward/escape"]`; its two factors are logged as `escape` and `upright`.
+No termination but physics blow-ups; 20 s episodes. Observation: proprioception + `origin`,
+the bowl centre in the root body's frame.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Literal
+
+import jax
+import jax.numpy as jp
+import mujoco
+import numpy as np
+from mujoco import mjx
+
+from vnl import rewards
+from vnl.arenas import bowl as bowl_arena
+from vnl.envs.base import State
+from vnl.errors import VnlError
+from vnl.tasks.base import WalkerTask, WalkerTaskConfig, body_id, build_walker, compile_world, spawn_height
+
+
+@dataclasses.dataclass(frozen=True)
+class EscapeBowlConfig(WalkerTaskConfig):
+    walker: Literal["ant", "humanoid", "rodent"] = "rodent"
+    episode_length: int = 1000
+    physics_timestep: float = 0.002
+    n_substeps: int = 10
+    iterations: int = 4
+    reset_noise_scale: float = 0.01
+    deviation_angle: float = 30.0  # degrees: upright = 1 within this tilt
+    bowl: bowl_arena.BowlParams = bowl_arena.BowlParams()
+
+    def validate(self) -> None:
+        super().validate()
+        if self.walker == "humanoid" and not self.walker_xml:
+            raise VnlError(
+                "walker: the humanoid brings its own floor and cannot go in the bowl; use ant, rodent or walker_xml"
+            )
+        b = self.bowl
+        if b.half_size <= 0 or b.height < 0 or b.base <= 0:
+            raise VnlError("bowl.half_size and bowl.base must be > 0 and bowl.height >= 0")
+        if b.nrow < 3:
+            raise VnlError(f"bowl.nrow must be >= 3, got {b.nrow}")
+        if not 0 <= b.smoothness <= 1:
+            raise VnlError(f"bowl.smoothness must be in [0, 1], got {b.smoothness}")
+        if not 0 <= self.deviation_angle < 180:
+            raise VnlError(f"deviation_angle must be in [0, 180) degrees, got {self.deviation_angle}")
+
+
+RODENT_ESCAPE_BOWL = EscapeBowlConfig()
+"""`rodent_escape_bowl`: dm_control's bowl (12 m heightfield, 0.5 m high), 20 s episodes of
+20 ms control steps (2 ms × 10 physics steps, 4 Newton iterations, see RODENT_RUN)."""
+
+ANT_ESCAPE_BOWL = EscapeBowlConfig(
+    walker="ant",
+    physics_timestep=0.01,
+    n_substeps=5,
+    iterations=2,
+    ls_iterations=6,
+    episode_length=400,
+    reset_noise_scale=0.1,
+    bowl=bowl_arena.BowlParams(nrow=61),
+)
+"""`ant_escape_bowl`: the same bowl with `ant_run`'s physics (10 ms × 5), 20 s episodes.
+
+The heightfield has 61 × 61 points (20 cm cells, the bumps' scale) instead of 201 × 201: MJX
+collides a geom with every heightfield cell its bounding sphere may touch, and the ant's long
+capsules cover ~11 × 11 cells of 6 cm (68 env steps/s at batch 4 vs 758 in the gaps corridor).
+"""
+
+
+class EscapeBowl(WalkerTask):
+    """See the module docstring."""
+
+    def __init__(self, config: EscapeBowlConfig) -> None:
+        walker = build_walker(config)
+        model, report = compile_world(walker, bowl_arena.build(config.bowl))
+        bowl_arena.write_terrain(model, config.bowl)
+        super().__init__(config, walker, model, report)
+        self._spawn_z = spawn_height(model, 0.0, 0.0)
+        site = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, "walker/head")
+        self._head_site = site if site >= 0 and walker.name == "rodent" else None
+        self._upright_bodies = np.asarray(
+            [self._root] + ([body_id(model, "pelvis")] if walker.name == "rodent" else []), dtype=int
+        )
+
+    def reset(self, rng: jax.Array) -> State:
+        cfg: EscapeBowlConfig = self._config
+        rng, k_pose, k_vel, k_yaw = jax.random.split(rng, 4)
+        yaw = jax.random.uniform(k_yaw, (), minval=-jp.pi, maxval=jp.pi)
+        qpos = self.initial_qpos(k_pose, jp.array([0.0, 0.0, self._spawn_z]), yaw)
+        noise = cfg.reset_noise_scale
+        qvel = jax.random.uniform(k_vel, (self._mj_model.nv,), minval=-noise, maxval=noise)
+        data = mjx.make_data(self._mjx_model).replace(qpos=qpos, qvel=qvel)
+        data = mjx.forward(self._mjx_model, data)
+        zero = jp.zeros((), jp.float32)
+        metrics = {
+            "reward/escape": zero,
+            "escape": zero,
+            "upright": zero,
+            "distance_from_origin": jp.linalg.norm(self._head_pos(data)),
+            "physics_nan": zero,
+        }
+        return State(data, self._obs(data), zero, zero, metrics, {"rng": rng})
+
+    def step(self, state: State, action: jax.Array) -> State:
+        action = self.sanitize_action(action)
+        data, blew_up = self.physics_step(state.data, action)
+        ok = 1.0 - blew_up
+        escape, upright = self.reward_factors(data)
+        reward = escape * upright * ok
+        metrics = {
+            **state.metrics,
+            "reward/escape": reward,
+            "escape": escape * ok,
+            "upright": upright * ok,
+            "distance_from_origin": jp.linalg.norm(self._head_pos(data)) * ok,
+            "physics_nan": blew_up,
+        }
+        return state.replace(data=data, obs=self._obs(data), reward=reward, done=blew_up, metrics=metrics)
+
+    def reward_factors(self, data: mjx.Data) -> tuple[jax.Array, jax.Array]:
+        """(escape, upright), each a scalar in [0, 1]."""
+        cfg: EscapeBowlConfig = self._config
+        r = cfg.bowl.half_size
+        escape = rewards.tolerance(jp.linalg.norm(self._head_pos(data)), (r, float("inf")), margin=r)
+        dev = float(np.cos(np.deg2rad(cfg.deviation_angle)))
+        zz = data.xmat[self._upright_bodies, 2, 2]
+        upright = jp.min(rewards.tolerance(zz, (dev, float("inf")), margin=1 + dev))
+        return escape, upright
+
+    def _head_pos(self, data: mjx.Data) -> jax.Array:
+        if self._head_site is not None:
+            return data.site_xpos[self._head_site]
+        return data.xpos[self._root]
+
+    def _obs(self, data: mjx.Data) -> jax.Array:
+        origin = -data.xpos[self._root] @ data.xmat[self._root]
+        return jp.concatenate([self.proprioception(data), origin.astype(jp.float32)])
+
+    def observation_layout(self) -> list[tuple[str, int]]:
+        return self.proprioception_layout() + [("origin", 3)]

@@ -1,0 +1,191 @@
+"""Run through a corridor of platforms and gaps (dm_control's `RunThroughCorridor` on
+`GapsCorridor`, as in `basic_rodent_2020.rodent_run_gaps`).
+
+Reward (one term, `metrics["reward/velocity"]`):
+
+  velocity = tolerance(v_x, bounds=(v*, v*), margin=v*)   (dm_control `rewards.tolerance`,
+             linear sigmoid, value 0 at the margin), v_x the x-velocity of the root body's
+             subtree centre of mass (MuJoCo's `subtree_linvel[root]`), v* = `target_velocity`.
+
+The episode fails (done) when an end effector (or, for walkers without any, the root body)
+drops below `terminate_at_height` (a fall into a gap or off the corridor), when a non-foot geom
+touches a platform and `contact_termination` is on, or when the physics blows up. Every
+`reset(rng)` draws a new platform/gap layout (`vnl.arenas.gaps`), different in every vmapped
+environment, without recompiling.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Literal
+
+import jax
+import jax.numpy as jp
+import numpy as np
+from mujoco import mjx
+
+from vnl import rewards
+from vnl.arenas import gaps
+from vnl.envs.base import State
+from vnl.errors import VnlError
+from vnl.tasks.base import WalkerTask, WalkerTaskConfig, body_id, build_walker, compile_world, spawn_height
+
+
+@dataclasses.dataclass(frozen=True)
+class RunGapsConfig(WalkerTaskConfig):
+    """`rodent_run_gaps` defaults: v* = 1 m/s, spawn at x = 5 m, fail below -0.3 m, 30 s episodes
+    of 20 ms control steps (dm_control: 1 ms physics steps; here 2 ms × 10, see RODENT_RUN_GAPS)."""
+
+    walker: Literal["ant", "humanoid", "rodent"] = "rodent"
+    episode_length: int = 1500
+    physics_timestep: float = 0.002
+    n_substeps: int = 10
+    iterations: int = 4  # the rat needs 4 Newton iterations at 2 ms (see run.RODENT_RUN)
+    reset_noise_scale: float = 0.01
+    target_velocity: float = 1.0
+    spawn_x: float = 5.0
+    terminate_at_height: float = -0.3
+    contact_termination: bool = False
+    corridor: gaps.GapsParams = gaps.GapsParams()
+
+    def validate(self) -> None:
+        super().validate()
+        if self.walker == "humanoid" and not self.walker_xml:
+            raise VnlError(
+                "walker: the humanoid brings its own floor and cannot run in the gaps corridor; "
+                "use ant, rodent or walker_xml"
+            )
+        if self.target_velocity <= 0:
+            raise VnlError(f"target_velocity must be > 0, got {self.target_velocity}")
+        c = self.corridor
+        lo, hi = c.platform_length
+        if not 0 < lo <= hi:
+            raise VnlError(f"corridor.platform_length must be (low, high) with 0 < low <= high, got {(lo, hi)}")
+        glo, ghi = c.gap_length
+        if not 0 <= glo <= ghi:
+            raise VnlError(f"corridor.gap_length must be (low, high) with 0 <= low <= high, got {(glo, ghi)}")
+        if c.corridor_width <= 0 or c.corridor_length <= 0:
+            raise VnlError("corridor.corridor_width and corridor.corridor_length must be > 0")
+        if c.behind < 0 or c.ahead < 0 or c.visual_ahead < 0:
+            raise VnlError("corridor.behind, corridor.ahead and corridor.visual_ahead must be >= 0")
+        if not 0 <= self.spawn_x < c.start_length:
+            raise VnlError(f"spawn_x must be in the gapless start region [0, {c.start_length}), got {self.spawn_x}")
+
+
+RODENT_RUN_GAPS = RunGapsConfig()
+ANT_RUN_GAPS = RunGapsConfig(
+    walker="ant",
+    physics_timestep=0.01,
+    n_substeps=5,
+    iterations=2,
+    ls_iterations=6,
+    episode_length=600,
+    reset_noise_scale=0.1,
+    target_velocity=2.5,
+    terminate_at_height=-0.75,
+    corridor=gaps.GapsParams(
+        corridor_width=5.0,
+        corridor_length=100.0,
+        platform_length=(1.0, 2.0),
+        gap_length=(0.125, 0.5),
+        start_length=15.0,
+        visual_ahead=6,
+    ),
+    spawn_x=12.5,
+)
+"""`ant_run_gaps`: the rodent corridor scaled by the ant's size (×2.5: platforms 1-2 m, gaps
+0.125-0.5 m, target 2.5 m/s, fail below -0.75 m), with `ant_run`'s physics (10 ms × 5)."""
+
+
+class RunGaps(WalkerTask):
+    """See the module docstring. Observation: the walker's proprioception (`vnl list -v`)."""
+
+    def __init__(self, config: RunGapsConfig) -> None:
+        walker = build_walker(config)
+        arena = gaps.build(config.corridor)
+        model, report = compile_world(walker, arena)
+        super().__init__(config, walker, model, report)
+        self._params = config.corridor
+        layout = gaps.sample_layout(jax.random.PRNGKey(0), self._params)
+        mocap = np.asarray(gaps.place_window(layout, jp.float32(config.spawn_x), self._params))
+        self._spawn_z = spawn_height(model, config.spawn_x, 0.0, mocap_pos=mocap)
+        self._low_bodies = self._ends if len(self._ends) else np.asarray([self._root])
+        # Contact termination: walker geoms outside the end effectors' subtrees vs platforms.
+        feet_bodies = {b for e in self._ends for b in range(model.nbody) if self._is_in_subtree(model, b, int(e))}
+        walker_geoms = [g for g in range(model.ngeom) if model.geom_bodyid[g] in set(self._walker_bodies.tolist())]
+        self._nonfoot = np.asarray([g for g in walker_geoms if model.geom_bodyid[g] not in feet_bodies], dtype=int)
+        self._ground = np.asarray(
+            [g for g in range(model.ngeom) if model.body(model.geom_bodyid[g]).name.startswith("platform_")], dtype=int
+        )
+
+    def reset(self, rng: jax.Array) -> State:
+        cfg: RunGapsConfig = self._config
+        rng, k_layout, k_pose, k_vel = jax.random.split(rng, 4)
+        layout = gaps.sample_layout(k_layout, self._params)
+        qpos = self.initial_qpos(k_pose, jp.array([cfg.spawn_x, 0.0, self._spawn_z]))
+        noise = cfg.reset_noise_scale
+        qvel = jax.random.uniform(k_vel, (self._mj_model.nv,), minval=-noise, maxval=noise)
+        mocap = gaps.place_window(layout, jp.float32(cfg.spawn_x), self._params)
+        data = mjx.make_data(self._mjx_model).replace(qpos=qpos, qvel=qvel, mocap_pos=mocap)
+        data = mjx.forward(self._mjx_model, data)
+        zero = jp.zeros((), jp.float32)
+        metrics = {
+            "reward/velocity": zero,
+            "x_position": data.xpos[self._root, 0],
+            "x_velocity": zero,
+            "distance": zero,
+            "fell": zero,
+            "physics_nan": zero,
+        }
+        info = {"rng": rng, "layout": layout}
+        return State(data, self.proprioception(data), zero, zero, metrics, info)
+
+    def step(self, state: State, action: jax.Array) -> State:
+        cfg: RunGapsConfig = self._config
+        action = self.sanitize_action(action)
+        layout: gaps.Layout = state.info["layout"]
+        data0 = state.data.replace(mocap_pos=gaps.place_window(layout, state.data.xpos[self._root, 0], self._params))
+        data, blew_up = self.physics_step(data0, action)
+        ok = 1.0 - blew_up
+        vx = self.subtree_linvel(data)[0]
+        velocity = rewards.tolerance(vx, (cfg.target_velocity, cfg.target_velocity), margin=cfg.target_velocity)
+        fell = self.failed(data)
+        reward = velocity * ok
+        done = jp.maximum(fell, blew_up)
+        metrics = {
+            **state.metrics,
+            "reward/velocity": reward,
+            "x_position": data.xpos[self._root, 0],
+            "x_velocity": vx * ok,
+            "distance": (data.xpos[self._root, 0] - cfg.spawn_x) * ok,
+            "fell": fell,
+            "physics_nan": blew_up,
+        }
+        return state.replace(data=data, obs=self.proprioception(data), reward=reward, done=done, metrics=metrics)
+
+    def failed(self, data: mjx.Data) -> jax.Array:
+        """1.0 if the episode fails: fell below `terminate_at_height` or (optionally) a non-foot
+        geom touches a platform."""
+        cfg: RunGapsConfig = self._config
+        low = jp.any(data.xpos[self._low_bodies, 2] < cfg.terminate_at_height)
+        if cfg.contact_termination and len(self._nonfoot) and data.contact.geom1.shape[0]:
+            c = data.contact
+            g1, g2 = c.geom1, c.geom2
+            bad = (jp.isin(g1, self._nonfoot) & jp.isin(g2, self._ground)) | (
+                jp.isin(g2, self._nonfoot) & jp.isin(g1, self._ground)
+            )
+            low = low | jp.any(bad & (c.dist < 0))
+        return low.astype(jp.float32)
+
+    def observation_layout(self) -> list[tuple[str, int]]:
+        return self.proprioception_layout()
+
+    @property
+    def corridor(self) -> gaps.GapsParams:
+        return self._params
+
+    def platform_body_ids(self) -> np.ndarray:
+        """Body ids of the window's platform boxes (collidable first, then visual)."""
+        m = self._mj_model
+        n = (self._params.window + self._params.visual_ahead) * self._params.pieces
+        return np.asarray([body_id(m, f"platform_{i}") for i in range(n)])
