@@ -5,6 +5,11 @@ over the same batch: the physics limit for that env. The ratio env/raw shows wha
 reward, NaN guard and action handling cost (target: ratio >= 0.9).
 
     .venv/bin/python benchmarks/env_throughput.py [--envs ant_run humanoid_run] [--batches 1 64 256]
+        [--dm-control]
+
+`--dm-control` adds the reference the rodent envs replace: dm_control's own `rodent_run_gaps`
+(`locomotion.examples.basic_rodent_2020`: MuJoCo C, 1 ms physics steps, one process), with its
+64×64 egocentric camera on (as shipped) and off, in control steps/s.
 """
 
 from __future__ import annotations
@@ -18,7 +23,7 @@ from mujoco import mjx
 
 import vnl
 
-STEPS = 50  # control steps per timed call (one lax.scan)
+STEPS = 20  # control steps per timed call (one lax.scan)
 
 
 def _time(fn, *args, repeats: int = 3) -> float:
@@ -33,6 +38,7 @@ def _time(fn, *args, repeats: int = 3) -> float:
 
 
 def measure(name: str, batch: int) -> tuple[float, float]:
+    """(env, raw) steps/s of `name` at `batch`."""
     env = vnl.make(name)
     keys = jax.random.split(jax.random.PRNGKey(0), batch)
     state = jax.jit(jax.vmap(env.reset))(keys)
@@ -60,10 +66,30 @@ def measure(name: str, batch: int) -> tuple[float, float]:
     return batch * STEPS / t_env, batch * STEPS / t_raw
 
 
+def dm_control_rodent(camera: bool, steps: int = 200) -> float:
+    """Control steps/s of dm_control's `rodent_run_gaps` with random actions (one process)."""
+    import numpy as np
+    from dm_control.locomotion.examples import basic_rodent_2020
+
+    env = basic_rodent_2020.rodent_run_gaps(random_state=np.random.RandomState(0))
+    env.task._walker.observables.egocentric_camera.enabled = camera  # noqa: SLF001 - benchmark only
+    spec = env.action_spec()
+    rng = np.random.default_rng(0)
+    env.reset()
+    env.step(rng.uniform(spec.minimum, spec.maximum))
+    t = time.perf_counter()
+    for _ in range(steps):
+        ts = env.step(rng.uniform(spec.minimum, spec.maximum))
+        if ts.last():
+            env.reset()
+    return steps / (time.perf_counter() - t)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--envs", nargs="+", default=vnl.names())
     parser.add_argument("--batches", nargs="+", type=int, default=[1, 64, 256])
+    parser.add_argument("--dm-control", action="store_true", help="time dm_control's rodent_run_gaps too")
     args = parser.parse_args()
     print(f"device: {jax.devices()[0].platform} x{jax.device_count()}, {platform.processor() or platform.machine()}")
     print(f"{'env':<16} {'batch':>6} {'env steps/s':>12} {'raw steps/s':>12} {'env/raw':>8}")
@@ -71,6 +97,10 @@ def main() -> None:
         for batch in args.batches:
             env_sps, raw_sps = measure(name, batch)
             print(f"{name:<16} {batch:>6} {env_sps:>12,.0f} {raw_sps:>12,.0f} {env_sps / raw_sps:>8.2f}", flush=True)
+    if args.dm_control:
+        print("dm_control rodent_run_gaps (MuJoCo C, 1 process, batch 1), control steps/s:")
+        for camera in (True, False):
+            print(f"  egocentric camera {'on ' if camera else 'off'}: {dm_control_rodent(camera):,.1f}", flush=True)
 
 
 if __name__ == "__main__":

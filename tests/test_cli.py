@@ -15,6 +15,8 @@ from vnl.io import checkpoint
 from vnl.io import metrics as metrics_io
 from vnl.io.video import read_mp4
 
+pytestmark = pytest.mark.xdist_group("cli")
+
 VNL = [sys.executable, "-m", "vnl.cli"]
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -9,9 +9,46 @@ import numpy as np
 import pytest
 
 import vnl
+from vnl.envs import registry
+from vnl.errors import VnlError
+from vnl.tasks.run import Run
 
-BATCH = 4
-STEPS = 200
+# Each distinct registered env (aliases such as `run` share `rodent_run`'s defaults) is compiled
+# once per test module: one jitted rollout of STEPS random-action control steps, vmapped over a
+# few envs; the last env of the batch gets zero actions.
+NAMES = [n for n in vnl.names() if n not in registry.ALIASES]
+RUN_NAMES = [n for n in NAMES if registry.entry(n).factory is Run]
+STEPS = 1000
+FIELDS = (
+    "qpos",
+    "qvel",
+    "act",
+    "mocap_pos",
+    "xpos",
+    "xmat",
+    "xipos",
+    "subtree_com",
+    "site_xpos",
+    "geom_xpos",
+    "geom_xmat",
+    "ctrl",
+    "cvel",
+    "qfrc_actuator",
+)
+
+
+def _pick(data):
+    """The FIELDS of an mjx.Data (plus MJX's impl-only `cinert`) as a dict."""
+    return {**{f: getattr(data, f) for f in FIELDS}, "cinert": data._impl.cinert}
+
+
+def by_env(names):
+    """Parameters grouped per env for pytest-xdist (`--dist loadgroup`): one compile per worker."""
+    return [pytest.param(n, marks=pytest.mark.xdist_group(n)) for n in names]
+
+
+def batch_size(name):
+    return 2 if name.startswith("rodent") else 4
 
 
 @functools.cache
@@ -21,41 +58,51 @@ def env(name):
 
 @functools.cache
 def random_rollout(name):
-    """(initial state, states after each step, actions) for STEPS random-action steps."""
+    """(initial state, per-step outputs, actions) for STEPS steps; per-step `data` holds FIELDS."""
     e = env(name)
+    b = batch_size(name)
 
     @jax.jit
     def go(key):
         k0, k1 = jax.random.split(key)
-        s0 = jax.vmap(e.reset)(jax.random.split(k0, BATCH))
-        actions = jax.random.uniform(k1, (STEPS, BATCH, e.action_size), minval=-1, maxval=1)
+        s0 = jax.vmap(e.reset)(jax.random.split(k0, b))
+        actions = jax.random.uniform(k1, (STEPS, b, e.action_size), minval=-1, maxval=1)
+        actions = actions.at[:, -1].set(0.0)
 
         def body(s, a):
             nxt = jax.vmap(e.step)(s, a)
-            return nxt, nxt
+            out = nxt.replace(data=_pick(nxt.data), info={})
+            return nxt, out
 
         _, traj = jax.lax.scan(body, s0, actions)
-        return s0, traj, actions
+        return s0.replace(data=_pick(s0.data)), traj, actions
 
     return jax.device_get(go(jax.random.PRNGKey(0)))
 
 
-@pytest.mark.parametrize("name", vnl.names())
+@pytest.mark.parametrize("name", by_env(NAMES))
 def test_reset_step_shapes_and_finiteness(name):
     e = env(name)
+    b = batch_size(name)
     s0, traj, _ = random_rollout(name)
-    assert s0.obs.shape == (BATCH, e.observation_size)
-    assert traj.obs.shape == (STEPS, BATCH, e.observation_size)
-    assert traj.reward.shape == (STEPS, BATCH) and traj.done.shape == (STEPS, BATCH)
+    assert s0.obs.shape == (b, e.observation_size)
+    assert traj.obs.shape == (STEPS, b, e.observation_size)
+    assert traj.reward.shape == (STEPS, b) and traj.done.shape == (STEPS, b)
     assert np.isfinite(traj.obs).all() and np.isfinite(traj.reward).all()
     for k, v in traj.metrics.items():
         assert np.isfinite(v).all(), k
     assert traj.obs.dtype == np.float32
+    assert traj.metrics["physics_nan"].sum() == 0
     # The dynamics move: observations are not constant over time.
     assert np.abs(traj.obs[-1] - traj.obs[0]).max() > 1e-3
+    # Reward terms are logged and sum to the reward.
+    terms = [k for k in traj.metrics if k.startswith("reward/")]
+    assert terms
+    np.testing.assert_allclose(sum(traj.metrics[k] for k in terms), traj.reward, rtol=1e-5, atol=1e-5)
+    assert sum(w for _, w in e.observation_layout()) == e.observation_size
 
 
-@pytest.mark.parametrize("name", vnl.names())
+@pytest.mark.parametrize("name", by_env(RUN_NAMES))
 def test_reward_terms_match_independent_recomputation(name):
     e = env(name)
     cfg = e.config
@@ -67,14 +114,15 @@ def test_reward_terms_match_independent_recomputation(name):
     subtree = [b for b in range(m.nbody) if _is_descendant(m, b, root)]
     mass = m.body_mass[subtree]
     t = 10
-    xipos = traj.data.xipos[t, 0][subtree]
+    xipos = traj.data["xipos"][t, 0][subtree]
     com = (mass[:, None] * xipos).sum(0) / mass.sum()
-    np.testing.assert_allclose(traj.data.subtree_com[t, 0, root], com, atol=1e-4)
+    np.testing.assert_allclose(traj.data["subtree_com"][t, 0, root], com, atol=1e-4)
 
-    prev_com = np.concatenate([s0.data.subtree_com[None, :, root], traj.data.subtree_com[:-1, :, root]])
-    vx = (traj.data.subtree_com[:, :, root, 0] - prev_com[..., 0]) / e.dt
-    z = traj.data.xpos[:, :, root, 2]
-    up = traj.data.xmat[:, :, root, 2, 2]
+    com_traj = traj.data["subtree_com"]
+    prev_com = np.concatenate([s0.data["subtree_com"][None, :, root], com_traj[:-1, :, root]])
+    vx = (com_traj[:, :, root, 0] - prev_com[..., 0]) / e.dt
+    z = traj.data["xpos"][:, :, root, 2]
+    up = traj.data["xmat"][:, :, root, 2, 2]
     healthy = (z >= cfg.healthy_z_range[0]) & (z <= cfg.healthy_z_range[1]) & (up >= cfg.healthy_min_upright)
     a = np.clip(actions, m.actuator_ctrlrange[:, 0], m.actuator_ctrlrange[:, 1])
     np.testing.assert_allclose(traj.metrics["reward/forward"], cfg.forward_reward_weight * vx, rtol=1e-4, atol=1e-4)
@@ -93,6 +141,7 @@ def _is_descendant(m, body, root):
     return root == 0
 
 
+@pytest.mark.xdist_group("humanoid_run")
 def test_humanoid_observation_is_the_notebooks_layout():
     e = env("humanoid_run")
     s0, traj, _ = random_rollout("humanoid_run")
@@ -102,11 +151,11 @@ def test_humanoid_observation_is_the_notebooks_layout():
     t, b = 5, 1
     expected = np.concatenate(
         [
-            d.qpos[t, b, 2:],
-            d.qvel[t, b],
-            d._impl.cinert[t, b, 1:].ravel(),
-            d.cvel[t, b, 1:].ravel(),
-            d.qfrc_actuator[t, b],
+            d["qpos"][t, b, 2:],
+            d["qvel"][t, b],
+            d["cinert"][t, b, 1:].ravel(),
+            d["cvel"][t, b, 1:].ravel(),
+            d["qfrc_actuator"][t, b],
         ]
     )
     np.testing.assert_allclose(traj.obs[t, b], expected, rtol=1e-6)
@@ -116,6 +165,7 @@ def test_humanoid_observation_is_the_notebooks_layout():
     assert sum(w for _, w in layout) == e.observation_size
 
 
+@pytest.mark.xdist_group("ant_run")
 def test_bodies_resolved_by_name():
     e = env("ant_run")
     assert e.mj_model.body(e.root_body_id).name == "walker/torso"
@@ -123,6 +173,7 @@ def test_bodies_resolved_by_name():
     assert h.mj_model.body(h.root_body_id).name == "torso"
 
 
+@pytest.mark.xdist_group("ant_run")
 def test_bad_actions_never_reach_physics():
     e = env("ant_run")
     s = jax.jit(e.reset)(jax.random.PRNGKey(1))
@@ -134,6 +185,7 @@ def test_bad_actions_never_reach_physics():
         assert float(n.metrics["physics_nan"]) == 0.0
 
 
+@pytest.mark.xdist_group("ant_run")
 def test_physics_blow_up_ends_episode_without_nan():
     e = env("ant_run")
     s = jax.jit(e.reset)(jax.random.PRNGKey(3))
@@ -147,6 +199,7 @@ def test_physics_blow_up_ends_episode_without_nan():
     assert np.isfinite(np.asarray(n.data.qpos)).all()
 
 
+@pytest.mark.xdist_group("ant_run")
 def test_ant_contacts_and_rest_height():
     """The ant stands on the floor at rest (no sinking) with the compiled solver settings."""
     e = env("ant_run")
@@ -156,3 +209,178 @@ def test_ant_contacts_and_rest_height():
         mujoco.mj_step(m, d)
     z = d.xpos[e.root_body_id, 2]
     assert 0.3 < z < 0.45, z  # torso sphere r=0.25 plus legs; fell through would be < 0.25
+
+
+# --- the rodent and the new arenas ------------------------------------------------------------
+
+
+def _mj_data(e, traj, t, b):
+    """MuJoCo C data at the state after step t of env b (qpos, qvel, act, mocap), forwarded."""
+    m = e.mj_model
+    d = mujoco.MjData(m)
+    d.qpos[:] = traj.data["qpos"][t, b]
+    d.qvel[:] = traj.data["qvel"][t, b]
+    if m.na:
+        d.act[:] = traj.data["act"][t, b]
+    if m.nmocap:
+        d.mocap_pos[:] = traj.data["mocap_pos"][t, b]
+    d.ctrl[:] = traj.data["ctrl"][t, b]
+    mujoco.mj_forward(m, d)
+    mujoco.mj_subtreeVel(m, d)
+    return d
+
+
+SAMPLE_T = (0, 1, 10, 50, 99, 300, 999)
+
+
+@pytest.mark.parametrize("name", by_env(["rodent_run_gaps", "ant_run_gaps"]))
+def test_run_gaps_reward_equals_dm_control_formula(name):
+    from dm_control.utils import rewards as dmc_rewards
+
+    e = env(name)
+    v = e.config.target_velocity
+    _, traj, _ = random_rollout(name)
+    for b in range(batch_size(name)):
+        for t in SAMPLE_T:
+            d = _mj_data(e, traj, t, b)
+            vx = d.subtree_linvel[e.root_body_id, 0]
+            expected = dmc_rewards.tolerance(vx, (v, v), margin=v, sigmoid="linear", value_at_margin=0.0)
+            assert traj.reward[t, b] == pytest.approx(float(expected), abs=2e-3), (t, b, vx)
+            # Termination: an end effector below terminate_at_height.
+            low = d.xpos[e._low_bodies, 2].min() < e.config.terminate_at_height
+            assert traj.metrics["fell"][t, b] == float(low)
+            assert traj.done[t, b] == max(float(low), traj.metrics["physics_nan"][t, b])
+
+
+@pytest.mark.parametrize("name", by_env(["rodent_escape_bowl", "ant_escape_bowl"]))
+def test_escape_reward_equals_dm_control_formula(name):
+    from dm_control.utils import rewards as dmc_rewards
+
+    e = env(name)
+    m = e.mj_model
+    r = e.config.bowl.half_size
+    dev = np.cos(np.deg2rad(30))
+    _, traj, _ = random_rollout(name)
+    rodent = name.startswith("rodent")
+    for b in range(batch_size(name)):
+        for t in SAMPLE_T:
+            d = _mj_data(e, traj, t, b)
+            # dm_control's Escape.get_reward: the rat's head site; other walkers: the root body.
+            p = d.site("walker/head").xpos if rodent else d.xpos[e.root_body_id]
+            escape = dmc_rewards.tolerance(
+                np.linalg.norm(p), (r, float("inf")), margin=r, sigmoid="linear", value_at_margin=0
+            )
+            zz = [d.xmat[e.root_body_id][-1]] + ([d.body("walker/pelvis").xmat[-1]] if rodent else [])
+            upright = np.min(
+                dmc_rewards.tolerance(
+                    np.array(zz), (dev, float("inf")), sigmoid="linear", margin=1 + dev, value_at_margin=0
+                )
+            )
+            assert traj.reward[t, b] == pytest.approx(float(upright * escape), abs=2e-3), (t, b)
+    assert m.hfield_nrow[0] == e.config.bowl.nrow
+
+
+@pytest.mark.xdist_group("rodent_run")
+def test_rodent_stands_on_the_floor_with_zero_action():
+    """After 2 s of zero action the rat's soles are within a few mm of the floor (no sinking,
+    no explosion)."""
+    e = env("rodent_run")
+    m = e.mj_model
+    _, traj, _ = random_rollout("rodent_run")
+    t = int(round(2.0 / e.dt)) - 1
+    b = batch_size("rodent_run") - 1  # the zero-action env
+    bottoms = []
+    for g in range(m.ngeom):
+        name = m.geom(g).name
+        if not (name.startswith(("walker/foot", "walker/toe")) and name.endswith("collision")):
+            continue
+        radius, half = m.geom_size[g, 0], m.geom_size[g, 1]
+        axis_z = traj.data["geom_xmat"][t, b, g].reshape(3, 3)[2, 2]
+        bottoms.append(traj.data["geom_xpos"][t, b, g, 2] - half * abs(axis_z) - radius)
+    assert len(bottoms) == 8
+    assert min(bottoms) == pytest.approx(0.0, abs=0.004), bottoms  # touching, not sunk
+    assert traj.data["xpos"][t, b, e.root_body_id, 2] > 0.03  # torso still up
+    assert traj.done[: t + 1, b].sum() == 0
+
+
+@pytest.mark.xdist_group("rodent_run_gaps")
+def test_gaps_layout_redrawn_per_reset_and_in_the_model():
+    e = env("rodent_run_gaps")
+    s0, traj, _ = random_rollout("rodent_run_gaps")
+    mocap = traj.data["mocap_pos"]
+    # Different envs (keys) see different platforms around the same spawn point.
+    assert np.abs(mocap[0, 0] - mocap[0, 1]).max() > 1e-3
+    n = e.corridor.window * e.corridor.pieces
+    # Every collidable window box is at the platform height or parked below.
+    z = mocap[..., :n, 2].ravel()
+    assert (np.isclose(z, -0.16) | np.isclose(z, -50.0)).all()
+
+
+@pytest.mark.xdist_group("rodent_run_gaps")
+def test_walker_falling_into_a_gap_is_detected():
+    """The rat placed over a 0.5 m gap falls in (MuJoCo C) and `failed` says so."""
+    from mujoco import mjx
+
+    from vnl.arenas import gaps
+
+    e = env("rodent_run_gaps")
+    m = e.mj_model
+    p = e.corridor
+    n = p.max_platforms
+    start = np.full(n, np.inf, np.float32)
+    length = np.full(n, 0.6, np.float32)
+    start[:5] = [5.0, 5.6, 6.2, 7.3, 7.9]  # 0.6 m platforms, abutting, then a 0.5 m gap (6.8-7.3)
+    layout = gaps.Layout(start=jp.asarray(start), length=jp.asarray(length))
+    d = mujoco.MjData(m)
+    d.qpos[:] = m.qpos0
+    d.qpos[:3] = (7.05, 0.0, 0.02)
+    d.mocap_pos[:] = np.asarray(gaps.place_window(layout, jp.float32(7.05), p))
+    mujoco.mj_forward(m, d)
+    assert float(e.failed(mjx.put_data(m, d))) == 0.0
+    for _ in range(int(1.0 / m.opt.timestep)):
+        mujoco.mj_step(m, d)
+    assert d.xpos[e.root_body_id, 2] < -0.3
+    assert float(e.failed(mjx.put_data(m, d))) == 1.0
+
+
+@pytest.mark.xdist_group("user_walker")
+def test_user_walker_file_errors_name_the_problem(tmp_path):
+    bad = tmp_path / "bad.xml"
+    bad.write_text("<mujoco><worldbody><body name='a'><geom size='0.1'/></worldbody></mujoco>")
+    good = tmp_path / "bug.xml"
+    good.write_text("<mujoco><worldbody><body name='trunk'><geom size='0.1'/></body></worldbody></mujoco>")
+    with pytest.raises(VnlError, match="no such file"):
+        vnl.make("run", walker_xml=str(tmp_path / "missing.xml"))
+    with pytest.raises(VnlError, match="could not parse"):
+        vnl.make("run", walker_xml=str(bad))
+    with pytest.raises(VnlError, match="no body named 'torso'.*trunk"):
+        vnl.make("run", walker_xml=str(good))
+
+
+@pytest.mark.xdist_group("user_walker")
+def test_user_walker_file_runs(tmp_path):
+    """A user's MJCF (with its own floor and free joint, both replaced) runs in the run task."""
+    xml = tmp_path / "bug.xml"
+    xml.write_text(
+        """<mujoco model="bug">
+          <worldbody>
+            <geom name="own_floor" type="plane" size="1 1 0.1"/>
+            <body name="trunk" pos="0 0 0.2">
+              <freejoint/>
+              <geom type="ellipsoid" size="0.1 0.05 0.04"/>
+              <body name="leg" pos="0.1 0 0">
+                <joint name="hip" type="hinge" axis="0 1 0" range="-1 1"/>
+                <geom type="capsule" size="0.02" fromto="0 0 0 0 0 -0.1"/>
+              </body>
+            </body>
+          </worldbody>
+          <actuator><motor joint="hip" ctrlrange="-1 1" gear="1"/></actuator>
+        </mujoco>"""
+    )
+    e = vnl.make("run", walker_xml=str(xml), root_body="trunk", episode_length=10, n_substeps=2)
+    assert e.walker.name == "bug" and e.action_size == 1
+    assert e.mj_model.body(e.root_body_id).name == "walker/trunk"
+    s = jax.jit(e.reset)(jax.random.PRNGKey(0))
+    s = jax.jit(e.step)(s, jp.ones(1))
+    assert np.isfinite(np.asarray(s.obs)).all()
+    assert [n for n, _ in e.observation_layout()][:2] == ["joints_pos", "joints_vel"]

@@ -17,6 +17,8 @@ from vnl.policy import load_run, make_policy_fn
 from vnl.train import config as train_config
 from vnl.train import ppo
 
+pytestmark = pytest.mark.xdist_group("train")
+
 SETTINGS = {
     "ppo": {
         "num_timesteps": 100_000,

@@ -19,6 +19,7 @@ class Rollout:
 
     Attributes:
       qpos: (E, T + 1, nq) positions, starting with the reset state.
+      mocap_pos: (E, T + 1, nmocap, 3) mocap body positions (e.g. the gaps corridor's platforms).
       reward: (E, T) rewards. done: (E, T) 1.0 where the episode ended.
       active: (E, T) 1.0 for steps up to and including the episode's end.
       metrics: name -> (E, T) per-step metrics.
@@ -26,6 +27,7 @@ class Rollout:
     """
 
     qpos: np.ndarray
+    mocap_pos: np.ndarray
     reward: np.ndarray
     done: np.ndarray
     active: np.ndarray
@@ -52,17 +54,18 @@ def rollout(env: Env, policy: Policy, rng: jax.Array, episodes: int, steps: int)
             nxt = jax.vmap(env.step)(state, action)
             active = alive
             alive = alive * (1.0 - nxt.done)
-            out = (nxt.data.qpos, nxt.reward, nxt.done, active, nxt.metrics)
+            out = (nxt.data.qpos, nxt.data.mocap_pos, nxt.reward, nxt.done, active, nxt.metrics)
             return (nxt, alive), out
 
         keys = jax.random.split(k_act, steps)
-        (_, _), (qpos, reward, done, active, metrics) = jax.lax.scan(body, (state, jp.ones((episodes,))), keys)
-        return state.data.qpos, state.metrics, qpos, reward, done, active, metrics
+        (_, _), (qpos, mocap, reward, done, active, metrics) = jax.lax.scan(body, (state, jp.ones((episodes,))), keys)
+        return state.data.qpos, state.data.mocap_pos, state.metrics, qpos, mocap, reward, done, active, metrics
 
-    qpos0, metrics0, qpos, reward, done, active, metrics = jax.device_get(run(rng))
+    qpos0, mocap0, metrics0, qpos, mocap, reward, done, active, metrics = jax.device_get(run(rng))
     to_et = lambda x: np.swapaxes(np.asarray(x), 0, 1)  # (T, E, ...) -> (E, T, ...)
     return Rollout(
         qpos=np.concatenate([np.asarray(qpos0)[:, None], to_et(qpos)], axis=1),
+        mocap_pos=np.concatenate([np.asarray(mocap0)[:, None], to_et(mocap)], axis=1),
         reward=to_et(reward),
         done=to_et(done),
         active=to_et(active),
@@ -121,6 +124,6 @@ def policy_video(
     steps = steps or int(round(10.0 / env.dt))
     r = rollout(env, policy, jax.random.PRNGKey(seed), episodes=1, steps=steps)
     n = int(r.lengths[0]) + 1  # the reset frame plus every active step
-    frames = video.render_frames(env.mj_model, r.qpos[0, :n], camera, width, height)
+    frames = video.render_frames(env.mj_model, r.qpos[0, :n], camera, width, height, mocap_pos=r.mocap_pos[0, :n])
     video.write_mp4(frames, path, fps=1.0 / env.dt)
     return str(path), n

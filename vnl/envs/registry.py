@@ -17,7 +17,29 @@ class Entry:
     factory: Callable[[Any], Env]
     default_config: Any
     description: str
+    # Per-preset training overrides merged over `vnl.train.config.PRESETS[preset]`.
+    presets: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
 
+
+# The rat steps ~10x slower than the ant on a CPU (43 joints, 10 physics steps of 2 ms per
+# control step): its `cpu` preset is a short smoke-scale run (100k steps, 5 s episodes, about
+# 15 minutes on 2 cores); real training wants `--preset gpu`.
+_RODENT_PRESETS = {
+    "cpu": {
+        "ppo": {
+            "num_timesteps": 100_000,
+            "num_envs": 64,
+            "batch_size": 64,
+            "num_minibatches": 4,
+            "num_updates_per_batch": 4,
+            "num_evals": 3,
+            "num_eval_envs": 16,
+            "episode_length": 250,
+        },
+        "log": {"video_seconds": 4.0},
+    },
+    "gpu": {"ppo": {"num_envs": 2048}},  # the notebooks' rodent setting (DESIGN.md §5)
+}
 
 _REGISTRY: dict[str, Entry] = {
     "ant_run": Entry(
@@ -34,16 +56,19 @@ _REGISTRY: dict[str, Entry] = {
         run.Run,
         run.RODENT_RUN,
         "dm_control's rat runs forward on a flat floor.",
+        _RODENT_PRESETS,
     ),
     "rodent_run_gaps": Entry(
         run_gaps.RunGaps,
         run_gaps.RODENT_RUN_GAPS,
         "The rat runs at 1 m/s through a corridor of platforms and gaps redrawn every episode.",
+        _RODENT_PRESETS,
     ),
     "rodent_escape_bowl": Entry(
         escape_bowl.EscapeBowl,
         escape_bowl.RODENT_ESCAPE_BOWL,
         "The rat climbs out of a bumpy heightfield bowl (reward: upright x distance).",
+        _RODENT_PRESETS,
     ),
     "ant_run_gaps": Entry(
         run_gaps.RunGaps,
@@ -56,12 +81,23 @@ _REGISTRY: dict[str, Entry] = {
         "The ant climbs out of the bumpy bowl.",
     ),
     # Tasks for any walker: set walker=ant|rodent or walker_xml=path/to/model.xml, root_body=...
-    "run": Entry(run.Run, run.RODENT_RUN, "Run task for any walker (walker=..., or walker_xml=FILE root_body=NAME)."),
+    "run": Entry(
+        run.Run,
+        run.RODENT_RUN,
+        "Run task for any walker (walker=..., or walker_xml=FILE root_body=NAME).",
+        _RODENT_PRESETS,
+    ),
     "run_gaps": Entry(
-        run_gaps.RunGaps, run_gaps.RODENT_RUN_GAPS, "Gaps corridor task for any walker (walker_xml=...)."
+        run_gaps.RunGaps,
+        run_gaps.RODENT_RUN_GAPS,
+        "Gaps corridor task for any walker (walker_xml=...).",
+        _RODENT_PRESETS,
     ),
     "escape_bowl": Entry(
-        escape_bowl.EscapeBowl, escape_bowl.RODENT_ESCAPE_BOWL, "Bowl escape task for any walker (walker_xml=...)."
+        escape_bowl.EscapeBowl,
+        escape_bowl.RODENT_ESCAPE_BOWL,
+        "Bowl escape task for any walker (walker_xml=...).",
+        _RODENT_PRESETS,
     ),
 }
 
@@ -69,15 +105,22 @@ ALIASES = {"run": "rodent_run", "run_gaps": "rodent_run_gaps", "escape_bowl": "r
 """Generic task names whose defaults equal a walker-specific env's (tests build each once)."""
 
 
-def register(name: str, factory: Callable[[Any], Env], default_config: Any, description: str = "") -> None:
+def register(
+    name: str,
+    factory: Callable[[Any], Env],
+    default_config: Any,
+    description: str = "",
+    presets: dict[str, dict[str, Any]] | None = None,
+) -> None:
     """Adds an environment: `factory(config) -> Env` and its frozen default config dataclass.
 
     The config's fields become overridable keys (`vnl.make(name, key=value)`, `env_config.key`);
-    it needs an `episode_length` field for training.
+    it needs an `episode_length` field for training. `presets` maps a preset name to training
+    overrides for this env (e.g. a smaller `cpu` budget for a slow env).
     """
     if not hasattr(default_config, "episode_length"):
         raise VnlError(f"{name}: the default config needs an episode_length field")
-    _REGISTRY[name] = Entry(factory, default_config, description)
+    _REGISTRY[name] = Entry(factory, default_config, description, dict(presets or {}))
 
 
 def unregister(name: str) -> None:

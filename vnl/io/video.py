@@ -41,8 +41,11 @@ def render_frames(
     camera: str | None = None,
     width: int = 480,
     height: int = 360,
+    mocap_pos: np.ndarray | None = None,
 ) -> np.ndarray:
     """Renders one frame per row of `qpos` (shape (T, nq)); returns uint8 (T, height, width, 3).
+
+    `mocap_pos` (T, nmocap, 3) places mocap bodies per frame (e.g. the gaps corridor's platforms).
 
     Raises `VnlError` with the fix when no OpenGL context can be made.
     """
@@ -62,6 +65,8 @@ def render_frames(
     try:
         for t, q in enumerate(qpos):
             data.qpos[:] = q
+            if mocap_pos is not None and model.nmocap:
+                data.mocap_pos[:] = mocap_pos[t]
             mujoco.mj_forward(model, data)
             renderer.update_scene(data, camera=cam)
             frames[t] = renderer.render()

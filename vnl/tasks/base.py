@@ -97,6 +97,7 @@ def compile_world(walker: Walker, arena: mjcf.RootElement | None) -> tuple[mujoc
     else:
         if arena is None:
             raise ValueError(f"walker {walker.name!r} needs an arena")
+        _add_tracking_camera(walker, walker.size)
         root = arena
         frame = root.attach(walker.mjcf_model)
         frame.add("freejoint")
@@ -108,6 +109,21 @@ def compile_world(walker: Walker, arena: mjcf.RootElement | None) -> tuple[mujoc
     except ValueError as e:  # MuJoCo's compiler errors (bad user MJCF)
         raise VnlError(f"the {walker.name!r} walker's world does not compile: {e}") from None
     return model, report
+
+
+def _add_tracking_camera(walker: Walker, size: float) -> None:
+    """A `tracking` camera (`walker/tracking` once attached) for arena views: follows the
+    walker's centre of mass from behind, to its left and above (distance scaled by
+    `walker.size`), looking at it. Added once per walker model."""
+    body = walker.mjcf_model.find("body", walker.root_body)
+    if body is None or walker.mjcf_model.find("camera", "tracking") is not None:
+        return
+    pos = np.array([-0.9, -0.9, 0.6]) * size
+    forward = -pos / np.linalg.norm(pos)
+    x = np.cross(forward, [0.0, 0.0, 1.0])
+    x /= np.linalg.norm(x)
+    y = np.cross(x, forward)
+    body.add("camera", name="tracking", mode="trackcom", pos=pos.tolist(), xyaxes=[*x.tolist(), *y.tolist()])
 
 
 def set_physics_options(model: mujoco.MjModel, config: WalkerTaskConfig) -> None:
@@ -219,6 +235,12 @@ class WalkerTask(Env):
         return root == 0
 
     @property
+    def observation_size(self) -> int:
+        """Flat observation width, from `observation_layout` (no tracing; tests check it against
+        the observations)."""
+        return sum(w for _, w in self.observation_layout())
+
+    @property
     def walker(self) -> Walker:
         return self._walker
 
@@ -228,6 +250,21 @@ class WalkerTask(Env):
         return self._root
 
     # --- kinematic quantities (pure JAX) -------------------------------------------------------
+    def sync_kinematics(self, data: mjx.Data) -> mjx.Data:
+        """Positions, frames, centres of mass and body velocities recomputed for the final
+        qpos/qvel of a control step.
+
+        `mjx.step` computes kinematics before integrating, so after it `xpos`, `cvel`, ... lag
+        `qpos`/`qvel` by one physics step. dm_control's `Physics.step` recomputes them (its
+        `mj_step1` after `mj_step2`) before the task reads rewards; tasks that reproduce
+        dm_control's rewards do the same.
+        """
+        m = self._mjx_model
+        data = mjx.kinematics(m, data)
+        data = mjx.com_pos(m, data)
+        data = mjx.tendon(m, data)
+        return mjx.com_vel(m, data)
+
     def subtree_linvel(self, data: mjx.Data) -> jax.Array:
         """Linear velocity of the root body's subtree centre of mass, world frame, shape (3,).
 

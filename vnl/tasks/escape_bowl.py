@@ -118,6 +118,7 @@ class EscapeBowl(WalkerTask):
     def step(self, state: State, action: jax.Array) -> State:
         action = self.sanitize_action(action)
         data, blew_up = self.physics_step(state.data, action)
+        data = self.sync_kinematics(data)
         ok = 1.0 - blew_up
         escape, upright = self.reward_factors(data)
         reward = escape * upright * ok

@@ -146,6 +146,7 @@ class RunGaps(WalkerTask):
         layout: gaps.Layout = state.info["layout"]
         data0 = state.data.replace(mocap_pos=gaps.place_window(layout, state.data.xpos[self._root, 0], self._params))
         data, blew_up = self.physics_step(data0, action)
+        data = self.sync_kinematics(data)
         ok = 1.0 - blew_up
         vx = self.subtree_linvel(data)[0]
         velocity = rewards.tolerance(vx, (cfg.target_velocity, cfg.target_velocity), margin=cfg.target_velocity)

@@ -214,12 +214,23 @@ def build(
     if preset not in PRESETS:
         raise VnlError(f"unknown preset {preset!r}; valid presets are: {', '.join(PRESETS)}")
     values: dict[str, Any] = config_lib.merge({"env": env, "preset": preset}, PRESETS[preset])
+    values = config_lib.merge(values, _env_preset(env, preset))
     values = config_lib.merge(values, file_values)
     values["preset"] = preset
     for text in assignments or []:
         values = config_lib.merge(values, config_lib.parse_assignment(text))
     values = config_lib.merge(values, flags or {})
     return config_lib.from_dict(TrainConfig, values)
+
+
+def _env_preset(env: str, preset: str) -> dict[str, Any]:
+    """The env's own overrides of `preset` (none for unknown envs: `from_dict` reports those)."""
+    from vnl.envs import registry
+
+    try:
+        return registry.entry(env).presets.get(preset, {})
+    except VnlError:
+        return {}
 
 
 def resolved(config: TrainConfig) -> TrainConfig:

@@ -32,6 +32,7 @@ def build(xml_path: str, root_body: str, self_collision: bool = False) -> Walker
             f"walker_xml: {str(path)!r} has no body named {root_body!r} (set root_body); "
             f"its bodies are: {', '.join(bodies) or '(none named)'}"
         )
+    model.model = "walker"  # names become walker/<name>, as for the built-in walkers
     for geom in list(model.worldbody.geom):
         geom.remove()  # the file's own floor; the arena provides the ground
     for joint in list(root.freejoint and [root.freejoint] or []) + [j for j in root.joint if j.type == "free"]:
