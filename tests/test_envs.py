@@ -384,3 +384,27 @@ def test_user_walker_file_runs(tmp_path):
     s = jax.jit(e.step)(s, jp.ones(1))
     assert np.isfinite(np.asarray(s.obs)).all()
     assert [n for n, _ in e.observation_layout()][:2] == ["joints_pos", "joints_vel"]
+
+
+@pytest.mark.xdist_group("user_walker")
+def test_contact_termination_on_a_non_foot_contact():
+    """With `contact_termination`, the rat lying on a platform (torso contact) fails; upright on
+    its feet it does not. (MuJoCo C state, the env's `failed` evaluated on it.)"""
+    from mujoco import mjx
+
+    from vnl.arenas import gaps
+
+    e = vnl.make("rodent_run_gaps", contact_termination=True)
+    m = e.mj_model
+    layout = gaps.sample_layout(jax.random.PRNGKey(0), e.corridor)
+    results = {}
+    for pose, quat in (("upright", (1, 0, 0, 0)), ("on_its_back", (0, 1, 0, 0))):
+        d = mujoco.MjData(m)
+        d.qpos[:] = m.qpos0
+        d.qpos[:3] = (5.0, 0.0, e._spawn_z + (0.0 if pose == "upright" else 0.12))
+        d.qpos[3:7] = quat
+        d.mocap_pos[:] = np.asarray(gaps.place_window(layout, jp.float32(5.0), e.corridor))
+        for _ in range(int(0.5 / m.opt.timestep)):
+            mujoco.mj_step(m, d)
+        results[pose] = float(e.failed(mjx.put_data(m, d)))
+    assert results == {"upright": 0.0, "on_its_back": 1.0}
