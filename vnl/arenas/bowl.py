@@ -21,6 +21,8 @@ import numpy as np
 from dm_control import mjcf
 from scipy import ndimage
 
+from vnl.arenas import base as arena_base
+
 
 @dataclasses.dataclass(frozen=True)
 class BowlParams:
@@ -50,22 +52,7 @@ def terrain(params: BowlParams) -> np.ndarray:
 
 def build(params: BowlParams) -> mjcf.RootElement:
     """The bowl's MJCF; call `write_terrain` on the compiled model to fill the heightfield."""
-    root = mjcf.RootElement(model="bowl")
-    root.visual.headlight.set_attributes(ambient=[0.4, 0.4, 0.4], diffuse=[0.8, 0.8, 0.8], specular=[0.1, 0.1, 0.1])
-    root.asset.add(
-        "texture", type="skybox", builtin="gradient", rgb1=[0.4, 0.6, 0.8], rgb2=[0, 0, 0], width=100, height=600
-    )
-    root.asset.add(
-        "texture",
-        name="grid",
-        type="2d",
-        builtin="checker",
-        rgb1=[0.2, 0.3, 0.4],
-        rgb2=[0.25, 0.35, 0.45],
-        width=100,
-        height=100,
-    )
-    root.asset.add("material", name="ground", texture="grid", texrepeat=[40, 40], texuniform=False)
+    root = arena_base.new_arena("bowl", "ground", (0.2, 0.3, 0.4), (0.25, 0.35, 0.45), (40, 40), texuniform=False)
     s = params.half_size
     root.asset.add(
         "hfield", name="terrain", nrow=params.nrow, ncol=params.nrow, size=[s, s, params.height, params.base]

@@ -29,6 +29,8 @@ import jax.numpy as jp
 import numpy as np
 from dm_control import mjcf
 
+from vnl.arenas import base as arena_base
+
 THICKNESS = 0.16  # platform half-height (dm_control's _WALL_THICKNESS)
 HIDDEN_Z = -50.0  # where unused window boxes wait
 
@@ -75,23 +77,10 @@ jax.tree_util.register_dataclass(Layout, data_fields=["start", "length"], meta_f
 
 def build(params: GapsParams, rgba: tuple[float, ...] = (0.5, 0.5, 0.5, 1.0)) -> mjcf.RootElement:
     """The corridor's MJCF: headlight, skybox and the window of mocap platform boxes."""
-    root = mjcf.RootElement(model="gaps_corridor")
-    root.visual.headlight.set_attributes(ambient=[0.4, 0.4, 0.4], diffuse=[0.8, 0.8, 0.8], specular=[0.1, 0.1, 0.1])
+    root = arena_base.new_arena(
+        "gaps_corridor", "platform", (0.35, 0.38, 0.42), (0.45, 0.48, 0.52), (4, 4), texuniform=True
+    )
     root.visual.map.znear = 0.0005
-    root.asset.add(
-        "texture", type="skybox", builtin="gradient", rgb1=[0.4, 0.6, 0.8], rgb2=[0, 0, 0], width=100, height=600
-    )
-    root.asset.add(
-        "texture",
-        name="grid",
-        type="2d",
-        builtin="checker",
-        rgb1=[0.35, 0.38, 0.42],
-        rgb2=[0.45, 0.48, 0.52],
-        width=100,
-        height=100,
-    )
-    root.asset.add("material", name="platform", texture="grid", texrepeat=[4, 4], texuniform=True)
     if params.max_geom_pairs > 0:
         # MJX reads this custom numeric: per geom-type group (e.g. capsule-box), only the
         # `max_geom_pairs` pairs with the closest bounding spheres go through the (expensive)

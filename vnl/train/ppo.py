@@ -223,7 +223,7 @@ def train(
         f"[vnl] training {config.env} (preset {config.preset}) on {devices} "
         f"{jax.default_backend()} device(s) -> {run_dir}"
     )
-    say("[vnl] compiling (first evaluation follows; this takes a minute or two on a CPU)...")
+    say("[vnl] compiling (first evaluation follows; on a CPU this takes 1-2 minutes for the ant, ~10 for the rat)...")
     interrupted = False
     params = None
     try:
