@@ -83,14 +83,3 @@ def write_terrain(model: mujoco.MjModel, params: BowlParams) -> None:
     i = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_HFIELD, "terrain")
     adr, n = model.hfield_adr[i], model.hfield_nrow[i] * model.hfield_ncol[i]
     model.hfield_data[adr : adr + n] = terrain(params).ravel()
-
-
-def height_at(params: BowlParams, x: float, y: float) -> float:
-    """Terrain height (m) at world (x, y), nearest grid point (0 outside the heightfield)."""
-    s = params.half_size
-    if abs(x) > s or abs(y) > s:
-        return 0.0
-    t = terrain(params)
-    c = int(round((x + s) / (2 * s) * (params.nrow - 1)))
-    r = int(round((y + s) / (2 * s) * (params.nrow - 1)))
-    return float(t[r, c] * params.height - 0.01)

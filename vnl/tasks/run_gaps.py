@@ -28,7 +28,7 @@ from vnl import rewards
 from vnl.arenas import gaps
 from vnl.envs.base import State
 from vnl.errors import VnlError
-from vnl.tasks.base import WalkerTask, WalkerTaskConfig, body_id, build_walker, compile_world, spawn_height
+from vnl.tasks.base import WalkerTask, WalkerTaskConfig, build_walker, compile_world, spawn_height
 
 
 @dataclasses.dataclass(frozen=True)
@@ -112,7 +112,8 @@ class RunGaps(WalkerTask):
         self._low_bodies = self._ends if len(self._ends) else np.asarray([self._root])
         # Contact termination: walker geoms outside the end effectors' subtrees vs platforms.
         feet_bodies = {b for e in self._ends for b in range(model.nbody) if self._is_in_subtree(model, b, int(e))}
-        walker_geoms = [g for g in range(model.ngeom) if model.geom_bodyid[g] in set(self._walker_bodies.tolist())]
+        walker_bodies = set(self._walker_bodies.tolist())
+        walker_geoms = [g for g in range(model.ngeom) if model.geom_bodyid[g] in walker_bodies]
         self._nonfoot = np.asarray([g for g in walker_geoms if model.geom_bodyid[g] not in feet_bodies], dtype=int)
         self._ground = np.asarray(
             [g for g in range(model.ngeom) if model.body(model.geom_bodyid[g]).name.startswith("platform_")], dtype=int
@@ -184,9 +185,3 @@ class RunGaps(WalkerTask):
     @property
     def corridor(self) -> gaps.GapsParams:
         return self._params
-
-    def platform_body_ids(self) -> np.ndarray:
-        """Body ids of the window's platform boxes (collidable first, then visual)."""
-        m = self._mj_model
-        n = (self._params.window + self._params.visual_ahead) * self._params.pieces
-        return np.asarray([body_id(m, f"platform_{i}") for i in range(n)])

@@ -35,7 +35,8 @@ def build(xml_path: str, root_body: str, self_collision: bool = False) -> Walker
     model.model = "walker"  # names become walker/<name>, as for the built-in walkers
     for geom in list(model.worldbody.geom):
         geom.remove()  # the file's own floor; the arena provides the ground
-    for joint in list(root.freejoint and [root.freejoint] or []) + [j for j in root.joint if j.type == "free"]:
+    free_joints = [root.freejoint] if root.freejoint is not None else []
+    for joint in free_joints + [j for j in root.joint if j.type == "free"]:
         joint.remove()
     if not self_collision:
         collide_with_arena_only(model)
