@@ -15,7 +15,7 @@ model cannot change its geoms. Here the layout is data, not model:
   (`pieces = ceil(max / min)`), placed from its start and its end: box sizes are model
   constants, box positions are not.
 
-The top of every platform is at z = 0. There is no floor: a walker that falls into a gap or off
+The top of every platform is at z = 0 (its overlapping pieces up to 0.2 mm lower). There is no floor: a walker that falls into a gap or off
 the corridor's side keeps falling, and the task ends the episode below `terminate_at_height`.
 """
 
@@ -33,6 +33,7 @@ from vnl.arenas import base as arena_base
 
 THICKNESS = 0.16  # platform half-height (dm_control's _WALL_THICKNESS)
 HIDDEN_Z = -50.0  # where unused window boxes wait
+PIECE_STEP = 2e-4  # m; see `build`: overlapping pieces of a platform differ by this in height and width
 
 
 @dataclasses.dataclass(frozen=True)
@@ -86,12 +87,15 @@ def build(params: GapsParams, rgba: tuple[float, ...] = (0.5, 0.5, 0.5, 1.0)) ->
         # `max_geom_pairs` pairs with the closest bounding spheres go through the (expensive)
         # narrow phase. Planes and heightfields are never culled.
         root.custom.add("numeric", name="max_geom_pairs", data=[params.max_geom_pairs])
-    half = [params.platform_length[0] / 2, params.corridor_width / 2, THICKNESS]
     n_collide = params.window * params.pieces
     n_visual = params.visual_ahead * params.pieces
     for i in range(n_collide + n_visual):
         body = root.worldbody.add("body", name=f"platform_{i}", mocap=True, pos=[0, 0, HIDDEN_Z])
         collide = i < n_collide
+        # Piece k is narrower (and placed lower) by k * PIECE_STEP, so overlapping pieces never
+        # have coplanar faces (which a renderer shows as flickering stripes).
+        step = (i % params.pieces) * PIECE_STEP
+        half = [params.platform_length[0] / 2, params.corridor_width / 2 - step, THICKNESS]
         body.add(
             "geom",
             name=f"platform_{i}",
@@ -156,7 +160,8 @@ def place_window(layout: Layout, x: jax.Array, params: GapsParams) -> jax.Array:
     centre = start[:, None] + piece / 2 + frac[None, :] * (length[:, None] - piece)
     valid = jp.repeat(valid, p)
     x_c = jp.where(valid, centre.reshape(-1), 0.0)
-    z_c = jp.where(valid, -THICKNESS, HIDDEN_Z)
+    z_piece = jp.tile(-THICKNESS - jp.arange(p) * PIECE_STEP, params.window + params.visual_ahead)
+    z_c = jp.where(valid, z_piece, HIDDEN_Z)
     return jp.stack([x_c, jp.zeros_like(x_c), z_c], axis=-1)
 
 
