@@ -1,4 +1,4 @@
-"""`vnl` command line: list | train | eval | render.
+"""`vnl` command line: list | train | eval | render | plot | record | analyze.
 
 The only module that parses flags or sets process-wide state (OpenGL backend, warning filters).
 User mistakes print one line `vnl: error: ...` and exit with code 2.
@@ -93,12 +93,10 @@ def cmd_train(args: argparse.Namespace, gl: str | None) -> int:
     import time
 
     from vnl import config as config_lib
-    from vnl.io import metrics as metrics_io
-    from vnl.io import plot
+    from vnl.errors import VnlError
     from vnl.train import config as train_config
     from vnl.train import ppo
 
-    file_values = config_lib.load_yaml(args.config) if args.config else {}
     flags: dict[str, Any] = {}
     if args.steps is not None:
         flags.setdefault("ppo", {})["num_timesteps"] = args.steps
@@ -108,40 +106,64 @@ def cmd_train(args: argparse.Namespace, gl: str | None) -> int:
         flags["seed"] = args.seed
     if args.no_video:
         flags.setdefault("log", {})["video"] = False
-    config = train_config.build(args.env, args.preset, file_values, args.set, flags)
-    if config.log.video:
-        # An unknown camera is an error now, not after training.
-        from vnl.envs import registry
-        from vnl.io import video
 
-        video.resolve_camera(registry.make(config.env, **config.env_config).mj_model, config.log.video_camera)
-    out = Path(args.out) if args.out else Path("runs") / f"{config.env}-{time.strftime('%Y%m%d-%H%M%S')}"
-    result = ppo.train(config, out, say=_say)
-    records = metrics_io.read(out / "metrics.jsonl")
-    if records:
-        plot.learning_curve(records, out / "learning_curve.png", title=f"{config.env} ({config.preset})")
-        first, last = records[0], records[-1]
-        vx = last.get("eval/mean_forward_velocity")
-        _say(
-            f"[vnl] eval reward {first.get('eval/episode_reward', float('nan')):.1f} (untrained) -> "
-            f"{last.get('eval/episode_reward', float('nan')):.1f} at step {last['step']:,}"
-            + (f"; mean forward velocity {vx:.2f} m/s" if vx is not None else "")
-            + f"; {result.wall_time / 60:.1f} min"
-        )
-    if config.log.video and not result.interrupted:
-        _final_video(out, config, gl)
+    def finish(run_dir: Path) -> Path | None:
+        return _final_video(run_dir, config, gl) if config.log.video else None
+
+    if args.resume:
+        if args.env or args.config or args.preset or args.out:
+            raise VnlError("--resume continues a run with its own config: drop ENV, --config, --preset and --out")
+        out = Path(args.resume)
+        from vnl.policy import read_config
+
+        config = ppo.resume_config(read_config(out), args.set, flags)
+        result = ppo.resume(out, args.from_step, args.set, flags, say=_say, finish=finish)
+    else:
+        if args.from_step is not None:
+            raise VnlError("--from-step needs --resume RUN_DIR")
+        if not args.env:
+            raise VnlError("vnl train needs an ENV (see `vnl list`) or --resume RUN_DIR")
+        file_values = config_lib.load_yaml(args.config) if args.config else {}
+        config = train_config.build(args.env, args.preset, file_values, args.set, flags)
+        if config.log.video:
+            # An unknown camera is an error now, not after training.
+            from vnl.envs import registry
+            from vnl.io import video
+
+            video.resolve_camera(registry.make(config.env, **config.env_config).mj_model, config.log.video_camera)
+        out = Path(args.out) if args.out else Path("runs") / f"{config.env}-{time.strftime('%Y%m%d-%H%M%S')}"
+        result = ppo.train(config, out, say=_say, finish=finish)
+    _summarize_run(out, config, result.wall_time)
     _say(f"[vnl] run directory: {out}")
     return 130 if result.interrupted else 0
 
 
-def _final_video(out: Path, config: Any, gl: str | None) -> None:
+def _summarize_run(out: Path, config: Any, wall_time: float) -> None:
+    from vnl.io import metrics as metrics_io
+    from vnl.io import plot
+
+    records = metrics_io.read(out / "metrics.jsonl")
+    if not records:
+        return
+    plot.learning_curve(records, out / "learning_curve.png", title=f"{config.env} ({config.preset})")
+    first, last = records[0], records[-1]
+    vx = last.get("eval/mean_forward_velocity")
+    _say(
+        f"[vnl] eval reward {first.get('eval/episode_reward', float('nan')):.1f} (untrained) -> "
+        f"{last.get('eval/episode_reward', float('nan')):.1f} at step {last['step']:,}"
+        + (f"; mean forward velocity {vx:.2f} m/s" if vx is not None else "")
+        + f"; {wall_time / 60:.1f} min"
+    )
+
+
+def _final_video(out: Path, config: Any, gl: str | None) -> Path | None:
     from vnl.errors import VnlError
     from vnl.policy import load_run
     from vnl.rollout import policy_video
 
     if not gl:
         _say(_no_gl_line())
-        return
+        return None
     run = load_run(out)
     steps = int(round(config.log.video_seconds / run.env.dt))
     try:
@@ -156,8 +178,9 @@ def _final_video(out: Path, config: Any, gl: str | None) -> None:
         )
     except VnlError as e:
         _say(f"[vnl] video skipped: {e}")
-        return
+        return None
     _say(f"[vnl] video of the final policy ({n} frames): {path}")
+    return Path(path)
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
@@ -222,6 +245,43 @@ def cmd_render(args: argparse.Namespace, gl: str | None) -> int:
     return 0
 
 
+def cmd_plot(args: argparse.Namespace) -> int:
+    from vnl.io import plot
+
+    out = Path(args.out) if args.out else Path(args.run_dirs[0]) / "compare.png"
+    path = plot.compare_runs(args.run_dirs, args.metric, out)
+    print(f"wrote {path}")
+    return 0
+
+
+def cmd_record(args: argparse.Namespace) -> int:
+    from vnl import record
+    from vnl.policy import load_run
+
+    run = load_run(args.run_dir, step=args.step)
+    steps = args.steps or run.config.episode_length()
+    ds = record.record(run, args.episodes, steps, args.seed, deterministic=not args.stochastic)
+    out = record.write(ds, args.out or run.run_dir / "record.nc")
+    layers = ", ".join(f"{k} ({ds.sizes[k + '_unit']})" for k in ds.data_vars if k.startswith(("policy_", "value_")))
+    print(f"{run.config.env} @ step {run.step:,}: {args.episodes} episodes x {steps} steps -> {out}")
+    print(f"layers: {layers}")
+    return 0
+
+
+def cmd_analyze(args: argparse.Namespace) -> int:
+    from vnl import analysis
+
+    ds = analysis.open_recording(args.recording)
+    layers = analysis.layer_names(ds)
+    layer = args.layer or next((n for n in layers if n.startswith("policy_hidden")), layers[0])
+    color = args.color or ("x_velocity" if "x_velocity" in ds else "reward")
+    out = args.out or str(Path(args.recording).with_name(f"pca_{layer}.png"))
+    path, ratio = analysis.pca_figure(ds, layer, color, out)
+    shares = ", ".join(f"PC{i + 1} {100 * r:.1f}%" for i, r in enumerate(ratio))
+    print(f"PCA of {layer} coloured by {color} ({shares} of variance): {path}")
+    return 0
+
+
 # --- parser -----------------------------------------------------------------------------------
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="vnl", description="Virtual Neuroscience Lab")
@@ -230,8 +290,10 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("list", help="list environments")
     p.add_argument("--verbose", "-v", action="store_true", help="observation layout and cameras")
 
-    p = sub.add_parser("train", help="train with Brax PPO")
-    p.add_argument("env", help="environment name (see `vnl list`)")
+    p = sub.add_parser("train", help="train with Brax PPO (or continue a run with --resume)")
+    p.add_argument("env", nargs="?", help="environment name (see `vnl list`)")
+    p.add_argument("--resume", metavar="RUN_DIR", help="continue this run from its newest good checkpoint")
+    p.add_argument("--from-step", type=int, help="with --resume: continue from this checkpoint step")
     p.add_argument("--config", help="YAML file with config values")
     p.add_argument(
         "--set",
@@ -266,6 +328,26 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--list-cameras", action="store_true", help="list the model's named cameras")
     p.add_argument("--env", help="with --list-cameras and no RUN_DIR: the environment")
+
+    p = sub.add_parser("plot", help="learning curves of one or several runs on one PNG")
+    p.add_argument("run_dirs", nargs="+", metavar="RUN_DIR")
+    p.add_argument("--metric", default="eval/episode_reward", help="e.g. episode_reward, reward/forward")
+    p.add_argument("--out", help="PNG path (default <first run>/compare.png)")
+
+    p = sub.add_parser("record", help="neural recordings: activations, observations, actions, body pose")
+    p.add_argument("run_dir")
+    p.add_argument("--episodes", type=int, default=4)
+    p.add_argument("--steps", type=int, help="control steps per episode (default: episode length)")
+    p.add_argument("--step", type=int, help="checkpoint step (default: newest)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--stochastic", action="store_true", help="sample actions instead of the mean action")
+    p.add_argument("--out", help="NetCDF file (default <run_dir>/record.nc)")
+
+    p = sub.add_parser("analyze", help="PCA of a recorded layer over time, as a PNG")
+    p.add_argument("recording", help="a file written by `vnl record`")
+    p.add_argument("--layer", help="e.g. policy_hidden_1 (default: the first policy hidden layer)")
+    p.add_argument("--color", help="per-step variable to colour by (default: x_velocity)")
+    p.add_argument("--out", help="PNG path (default next to the recording)")
     return parser
 
 
@@ -281,6 +363,12 @@ def main(argv: Sequence[str] | None = None) -> int:
             return cmd_train(args, gl)
         if args.command == "eval":
             return cmd_eval(args)
+        if args.command == "plot":
+            return cmd_plot(args)
+        if args.command == "record":
+            return cmd_record(args)
+        if args.command == "analyze":
+            return cmd_analyze(args)
         return cmd_render(args, gl)
     except VnlError as e:
         print(f"vnl: error: {e}", file=sys.stderr)

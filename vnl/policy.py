@@ -41,17 +41,21 @@ def read_config(run_dir: str | Path) -> TrainConfig:
     return config_lib.from_dict(TrainConfig, config_lib.load_yaml(str(path)))
 
 
-def make_policy_fn(config: TrainConfig, env: Env, params: Any, deterministic: bool) -> Policy:
-    """`policy(obs, rng) -> action` from Brax PPO params, with the run's network sizes."""
+def make_network(config: TrainConfig, env: Env) -> Any:
+    """Brax's `PPONetworks` (policy, value, action distribution) with the run's sizes."""
     from brax.training.acme import running_statistics
-    from brax.training.agents.ppo import networks as ppo_networks
 
     from vnl.train.ppo import network_factory
 
     normalize = running_statistics.normalize if config.ppo.normalize_observations else (lambda x, y: x)
-    network = network_factory(config.network)(
-        env.observation_size, env.action_size, preprocess_observations_fn=normalize
-    )
+    return network_factory(config.network)(env.observation_size, env.action_size, preprocess_observations_fn=normalize)
+
+
+def make_policy_fn(config: TrainConfig, env: Env, params: Any, deterministic: bool) -> Policy:
+    """`policy(obs, rng) -> action` from Brax PPO params, with the run's network sizes."""
+    from brax.training.agents.ppo import networks as ppo_networks
+
+    network = make_network(config, env)
     inference = ppo_networks.make_inference_fn(network)(params, deterministic=deterministic)
 
     def policy(obs: jax.Array, rng: jax.Array) -> jax.Array:

@@ -15,8 +15,9 @@ model cannot change its geoms. Here the layout is data, not model:
   (`pieces = ceil(max / min)`), placed from its start and its end: box sizes are model
   constants, box positions are not.
 
-The top of every platform is at z = 0 (its overlapping pieces up to 0.2 mm lower). There is no floor: a walker that falls into a gap or off
-the corridor's side keeps falling, and the task ends the episode below `terminate_at_height`.
+The top of every platform is at z = 0 (its overlapping pieces up to 0.2 mm lower). There is no
+floor: a walker that falls into a gap or off the corridor's side keeps falling, and the task
+ends the episode below `terminate_at_height`.
 """
 
 from __future__ import annotations

@@ -1,47 +1,92 @@
-"""Checkpoints of PPO parameters in `<run>/checkpoints/<step:012d>/` (orbax).
+"""Checkpoints in `<run>/checkpoints/<step:012d>/`.
 
-Each checkpoint holds Brax's `(normalizer_params, policy_params, value_params)` tuple. Orbax writes
-into a temporary directory and renames it when complete, so a crash mid-write leaves the previous
-checkpoints intact and no half-written directory under a step name. Loading skips (with a warning)
-a checkpoint that cannot be read and falls back to the next older one.
+Each checkpoint directory holds:
+
+- `params/`: Brax's `(normalizer_params, policy_params, value_params)` tuple (orbax), all that
+  `vnl eval`, `vnl render`, `vnl record` and `vnl.load_policy` need;
+- `train_state.npz`: the whole training state (`vnl.train.loop.LoopState`: optimizer state,
+  params, normalizer, env step count, the training environments' states and PRNG keys), one named
+  array per leaf, what `vnl train --resume` continues from;
+- `meta.json`: the step, the epoch length, the wall time so far and the metrics record of that
+  evaluation.
+
+A checkpoint is written into a hidden temporary directory and renamed to its step name when
+complete, so a crash mid-write never leaves a half-written checkpoint under a step name. Loading
+skips (with a warning) a checkpoint that cannot be read and falls back to the next older one.
 """
 
 from __future__ import annotations
 
-import logging
+import json
+import os
 import re
 import shutil
 import warnings
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from vnl.errors import VnlError
 
 _STEP_DIR = re.compile(r"^\d{12}$")
-_log = logging.getLogger(__name__)
+PARAMS = "params"
+TRAIN_STATE = "train_state.npz"
+META = "meta.json"
 
 
 def checkpoint_dir(run_dir: str | Path) -> Path:
     return Path(run_dir) / "checkpoints"
 
 
-def save(run_dir: str | Path, step: int, params: Any, keep: int = 0) -> Path:
-    """Writes `params` as checkpoint `step`; keeps the newest `keep` (0 = all). Returns its path."""
+def step_dir(run_dir: str | Path, step: int) -> Path:
+    return checkpoint_dir(run_dir) / f"{step:012d}"
+
+
+def save(
+    run_dir: str | Path,
+    step: int,
+    params: Any,
+    keep: int = 0,
+    train_state: dict[str, np.ndarray] | None = None,
+    meta: dict[str, Any] | None = None,
+) -> Path:
+    """Writes checkpoint `step` atomically; keeps the newest `keep` (0 = all). Returns its path.
+
+    Args:
+      params: Brax's (normalizer_params, policy_params, value_params).
+      train_state: named host arrays of the full training state (`PPOLoop.to_arrays`), or None.
+      meta: JSON-serializable facts about the checkpoint.
+    """
     import jax
     from flax.training import orbax_utils
     from orbax import checkpoint as ocp
 
     root = checkpoint_dir(run_dir)
     root.mkdir(parents=True, exist_ok=True)
-    path = root / f"{step:012d}"
+    final = step_dir(run_dir, step)
+    tmp = root / f".tmp-{step:012d}-{os.getpid()}"
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir()
     params = jax.device_get(params)
     checkpointer = ocp.PyTreeCheckpointer()
-    save_args = orbax_utils.save_args_from_target(params)
-    checkpointer.save(path.absolute(), params, save_args=save_args, force=True)
+    checkpointer.save((tmp / PARAMS).absolute(), params, save_args=orbax_utils.save_args_from_target(params))
+    if train_state is not None:
+        with open(tmp / TRAIN_STATE, "wb") as f:
+            np.savez(f, **train_state)
+            f.flush()
+            os.fsync(f.fileno())
+    with open(tmp / META, "w") as f:
+        json.dump({"step": int(step), **(meta or {})}, f)
+        f.flush()
+        os.fsync(f.fileno())
+    if final.exists():  # an older write of the same step (e.g. a resumed run redoing it)
+        shutil.rmtree(final)
+    os.rename(tmp, final)
     if keep > 0:
         for old in steps(run_dir)[:-keep]:
-            shutil.rmtree(root / f"{old:012d}", ignore_errors=True)
-    return path
+            shutil.rmtree(step_dir(run_dir, old), ignore_errors=True)
+    return final
 
 
 def steps(run_dir: str | Path) -> list[int]:
@@ -52,32 +97,58 @@ def steps(run_dir: str | Path) -> list[int]:
     return sorted(int(p.name) for p in root.iterdir() if p.is_dir() and _STEP_DIR.match(p.name))
 
 
+def _candidates(run_dir: str | Path, step: int | None) -> list[int]:
+    available = steps(run_dir)
+    if not available:
+        raise VnlError(f"no checkpoint in {checkpoint_dir(run_dir)}; train first with `vnl train ENV --out {run_dir}`")
+    if step is None:
+        return list(reversed(available))
+    if step not in available:
+        raise VnlError(f"no checkpoint at step {step} in {run_dir}; available steps: {', '.join(map(str, available))}")
+    return [step]
+
+
+def _first_readable(run_dir: str | Path, step: int | None, read: Any, what: str) -> tuple[int, Any]:
+    errors = []
+    for s in _candidates(run_dir, step):
+        path = step_dir(run_dir, s)
+        try:
+            return s, read(path)
+        except Exception as e:  # noqa: BLE001 - any unreadable checkpoint falls back to an older one
+            errors.append(f"step {s}: {type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}")
+            if step is None:
+                warnings.warn(f"checkpoint {path} is unreadable ({errors[-1]}); trying an older one", stacklevel=3)
+    raise VnlError(f"no readable {what} in {checkpoint_dir(run_dir)} ({'; '.join(errors)})")
+
+
+def _read_params(path: Path) -> Any:
+    from brax.training import checkpoint as brax_checkpoint
+
+    # Runs written before train_state existed kept the params at the top of the step directory.
+    target = path / PARAMS if (path / PARAMS).is_dir() else path
+    return brax_checkpoint.load(target.absolute())
+
+
 def load(run_dir: str | Path, step: int | None = None) -> tuple[int, Any]:
     """(step, params) of checkpoint `step`, or of the newest readable one when `step` is None.
 
     Raises `VnlError` when there is no checkpoint, the asked step does not exist, or none can be
     read.
     """
-    from brax.training import checkpoint as brax_checkpoint
+    return _first_readable(run_dir, step, _read_params, "checkpoint")
 
-    available = steps(run_dir)
-    if not available:
-        raise VnlError(f"no checkpoint in {checkpoint_dir(run_dir)}; train first with `vnl train ENV --out {run_dir}`")
-    if step is not None:
-        if step not in available:
-            raise VnlError(
-                f"no checkpoint at step {step} in {run_dir}; available steps: {', '.join(map(str, available))}"
-            )
-        candidates = [step]
-    else:
-        candidates = list(reversed(available))
-    errors = []
-    for s in candidates:
-        path = checkpoint_dir(run_dir) / f"{s:012d}"
-        try:
-            return s, brax_checkpoint.load(path.absolute())
-        except Exception as e:  # noqa: BLE001 - any unreadable checkpoint falls back to an older one
-            errors.append(f"step {s}: {type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}")
-            if step is None:
-                warnings.warn(f"checkpoint {path} is unreadable ({errors[-1]}); trying an older one", stacklevel=2)
-    raise VnlError(f"no readable checkpoint in {checkpoint_dir(run_dir)} ({'; '.join(errors)})")
+
+def _read_train_state(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    if not (path / TRAIN_STATE).is_file():
+        raise FileNotFoundError(f"no {TRAIN_STATE} (written by a vnl without resume support?)")
+    with np.load(path / TRAIN_STATE, allow_pickle=False) as z:
+        arrays = {k: z[k] for k in z.files}
+    with open(path / META) as f:
+        meta = json.load(f)
+    return arrays, meta
+
+
+def load_train_state(run_dir: str | Path, step: int | None = None) -> tuple[int, dict[str, np.ndarray], dict[str, Any]]:
+    """(step, arrays, meta) of the full training state of checkpoint `step` (None: newest readable)."""
+    s, (arrays, meta) = _first_readable(run_dir, step, _read_train_state, "training state")
+    return s, arrays, meta

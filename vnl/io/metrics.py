@@ -38,6 +38,18 @@ def _jsonable(value: Any) -> Any:
     return value
 
 
+def rewrite(path: str | Path, records: list[dict[str, Any]]) -> None:
+    """Replaces the file with `records`, atomically (temp file + rename)."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "w") as f:
+        for record in records:
+            f.write(json.dumps(_jsonable(record)) + "\n")
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
 def read(path: str | Path) -> list[dict[str, Any]]:
     """All records of a metrics.jsonl; a torn last line (crash mid-write) is ignored."""
     records = []

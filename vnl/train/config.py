@@ -108,6 +108,12 @@ class LogConfig:
     video_width: int = 480
     video_height: int = 360
     progress: bool = True  # a progress line on the terminal
+    tensorboard: bool = False  # TensorBoard event files in <run>/tensorboard/
+    wandb: bool = False  # a Weights & Biases run in <run>/wandb/ (pip install 'vnl[wandb]')
+    wandb_project: str = "vnl"
+    wandb_name: str | None = None  # None: the run directory's name
+    wandb_tags: tuple[str, ...] = ()
+    wandb_mode: Literal["auto", "offline", "online"] = "auto"  # auto: online once `wandb login` was run
 
     def validate(self) -> None:
         if self.checkpoint_every < 1:

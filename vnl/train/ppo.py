@@ -1,9 +1,10 @@
-"""Training with Brax's PPO (`brax.training.agents.ppo.train`) through its hooks.
+"""Training runs: Brax's PPO (through `vnl.train.loop`), checkpoints, metrics and resume.
 
-`wrap_env_fn` adapts our `State` to Brax's wrappers, `network_factory` builds the configured MLPs,
-`policy_params_fn` writes checkpoints and `progress_fn` writes metrics.jsonl and the progress
-line. Ctrl-C or SIGTERM asks training to stop at the next evaluation: metrics are flushed, the last
-checkpoint is kept, and the run directory says how to use it.
+`train` starts a run in a new directory, `resume` continues one from a checkpoint exactly where it
+stopped. After every evaluation the full training state is checkpointed (every
+`log.checkpoint_every` evaluations) and the metrics record is written to metrics.jsonl and the
+enabled trackers. Ctrl-C or SIGTERM asks training to stop at the next evaluation: a checkpoint is
+written there, metrics are flushed, and the run can be resumed with `vnl train --resume RUN_DIR`.
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ import contextlib
 import dataclasses
 import functools
 import os
+import shutil
 import signal
 import threading
 import time
@@ -24,10 +26,6 @@ from vnl.errors import VnlError
 from vnl.io import checkpoint
 from vnl.io import metrics as metrics_io
 from vnl.train.config import NetworkConfig, TrainConfig, resolved
-
-
-class _StopRequested(Exception):
-    """Raised from progress_fn to leave `ppo.train` after a signal."""
 
 
 @dataclasses.dataclass
@@ -160,97 +158,237 @@ def make_record(step: int, wall_time: float, brax_metrics: dict[str, Any]) -> di
     return record
 
 
+SAFE_TO_CHANGE_ON_RESUME = ("ppo.num_timesteps", "log.")
+
+
+def resume_config(saved: TrainConfig, assignments: list[str] | None, flags: dict[str, Any] | None) -> TrainConfig:
+    """`saved` with `--set`/flag changes applied; only total steps and `log.*` may change.
+
+    Anything else (env, network, PPO hyperparameters, seed) would make the continued run a
+    different experiment, so it is refused with the list of offending keys.
+    """
+    values = config_lib.to_dict(saved)
+    for text in assignments or []:
+        values = config_lib.merge(values, config_lib.parse_assignment(text))
+    values = config_lib.merge(values, flags or {})
+    new = config_lib.from_dict(TrainConfig, values)
+    before, after = _flatten(config_lib.to_dict(saved)), _flatten(config_lib.to_dict(new))
+    changed = sorted(k for k in set(before) | set(after) if before.get(k) != after.get(k))
+    unsafe = [k for k in changed if not k.startswith(SAFE_TO_CHANGE_ON_RESUME)]
+    if unsafe:
+        detail = ", ".join(f"{k}: {before.get(k)!r} -> {after.get(k)!r}" for k in unsafe)
+        raise VnlError(
+            f"cannot resume with a changed {detail}; a resumed run may only change ppo.num_timesteps "
+            "(--steps) and log.* settings. Start a new run for a different configuration."
+        )
+    return new
+
+
+def _flatten(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        if isinstance(v, dict) and not (prefix == "" and k == "env_config"):
+            out.update(_flatten(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = repr(v) if isinstance(v, dict) else v
+    return out
+
+
+def _truncate_metrics(run_dir: Path, step: int, record: dict[str, Any] | None, say: Callable[[str], None]) -> float:
+    """Keeps the metrics.jsonl records up to `step` (taking that step's record from the checkpoint
+    if the file lacks it), so the resumed run continues it without duplicates or gaps. A file with
+    later records is first copied to a timestamped backup. Returns the wall time at `step`."""
+    path = run_dir / "metrics.jsonl"
+    records = metrics_io.read(path) if path.exists() else []
+    kept = [r for r in records if r.get("step", 0) < step]
+    at_step = next((r for r in records if r.get("step") == step), record)
+    if at_step is not None:
+        kept.append(at_step)
+    if any(r.get("step", 0) > step for r in records):
+        backup = run_dir / f"metrics.jsonl.{time.strftime('%Y%m%d-%H%M%S')}.bak"
+        shutil.copyfile(path, backup)
+        say(f"[vnl] metrics after step {step:,} will be recomputed; the previous file is kept as {backup.name}")
+    metrics_io.rewrite(path, kept)
+    return float(at_step.get("wall_time", 0.0)) if at_step else 0.0
+
+
+def _set_aside_later_checkpoints(run_dir: Path, step: int, say: Callable[[str], None]) -> None:
+    later = [s for s in checkpoint.steps(run_dir) if s > step]
+    if not later:
+        return
+    aside = checkpoint.checkpoint_dir(run_dir) / f"superseded-{time.strftime('%Y%m%d-%H%M%S')}"
+    aside.mkdir()
+    for s in later:
+        os.rename(checkpoint.step_dir(run_dir, s), aside / f"{s:012d}")
+    say(f"[vnl] checkpoints after step {step:,} moved to {aside}")
+
+
 def train(
     config: TrainConfig,
     run_dir: str | Path,
     say: Callable[[str], None] = print,
+    finish: Callable[[Path], Path | None] | None = None,
 ) -> TrainResult:
-    """Trains `config.env` with Brax PPO, writing everything into `run_dir`.
+    """Trains `config.env` with Brax PPO (`vnl.train.loop`), writing everything into `run_dir`.
 
-    Returns when training ends or after a stop was requested (SIGINT/SIGTERM).
+    Returns when training ends or after a stop was requested (SIGINT/SIGTERM). `finish(run_dir)`
+    runs after a completed run, while the trackers are open; a path it returns (a video) is
+    uploaded to wandb when enabled.
     """
-    import jax
-    from brax.training.agents.ppo import train as ppo
+    run_dir = Path(run_dir)
+    _check_devices(config)
+    prepare_run_dir(run_dir, config)
+    return _run(config, run_dir, None, say, finish)
 
-    from vnl.envs import registry
+
+def resume(
+    run_dir: str | Path,
+    from_step: int | None = None,
+    assignments: list[str] | None = None,
+    flags: dict[str, Any] | None = None,
+    say: Callable[[str], None] = print,
+    finish: Callable[[Path], Path | None] | None = None,
+) -> TrainResult:
+    """Continues the run in `run_dir` from its newest good checkpoint (or `from_step`).
+
+    The continued run is the same as one that was never interrupted: the checkpoint holds the
+    optimizer state, environment states and PRNG keys. `assignments`/`flags` may change only
+    `ppo.num_timesteps` and `log.*` (see `resume_config`).
+    """
+    from vnl.policy import read_config
 
     run_dir = Path(run_dir)
+    saved = read_config(run_dir)
+    config = resume_config(saved, assignments, flags)
+    _check_devices(config)
+    step, arrays, meta = checkpoint.load_train_state(run_dir, from_step)
+    if config != saved:
+        config_lib.dump_yaml(config, str(run_dir / "config.yaml"))
+    return _run(config, run_dir, (step, arrays, meta), say, finish)
+
+
+def _check_devices(config: TrainConfig) -> None:
+    import jax
+
     devices = jax.local_device_count()
     if config.ppo.num_envs % devices or config.ppo.batch_size % devices:
         raise VnlError(
             f"ppo.num_envs ({config.ppo.num_envs}) and ppo.batch_size ({config.ppo.batch_size}) "
             f"must be multiples of the number of devices ({devices})"
         )
-    prepare_run_dir(run_dir, config)
-    env = registry.entry(config.env).factory(config.resolved_env_config())
-    p = config.ppo
-    writer = metrics_io.JsonlWriter(run_dir / "metrics.jsonl")
-    records: list[dict[str, Any]] = []
-    stop = threading.Event()
-    t_start = time.time()
-    n_params_calls = [0]
 
-    def progress_fn(step: int, brax_metrics: dict[str, Any]) -> None:
-        record = make_record(step, time.time() - t_start, brax_metrics)
-        writer.write(record)
+
+def _run(
+    config: TrainConfig,
+    run_dir: Path,
+    restored: tuple[int, dict[str, Any], dict[str, Any]] | None,
+    say: Callable[[str], None],
+    finish: Callable[[Path], Path | None] | None,
+) -> TrainResult:
+    import jax
+
+    from vnl.envs import registry
+    from vnl.io import tracking
+    from vnl.train.loop import PPOLoop
+
+    p = config.ppo
+    env = registry.entry(config.env).factory(config.resolved_env_config())
+    epoch_steps = restored[2]["training_steps_per_epoch"] if restored else None
+    loop = PPOLoop(env, config, training_steps_per_epoch=epoch_steps)
+    stop = threading.Event()
+    records: list[dict[str, Any]] = []
+    wall_offset = 0.0
+    if restored:
+        step0, arrays, meta = restored
+        _set_aside_later_checkpoints(run_dir, step0, say)
+        wall_offset = _truncate_metrics(run_dir, step0, meta.get("record"), say)
+        loop.training_walltime = float(meta.get("training_walltime", 0.0))
+    wandb_id = restored[2].get("wandb_id") if restored else None
+    tracker = tracking.Tracker(run_dir, config.log, config_lib.to_dict(config), say, wandb_id=wandb_id)
+    t_start = time.time()
+    n_evals = [0]
+
+    def log(record: dict[str, Any]) -> None:
+        step = record["step"]
+        tracker.write(record)
         records.append(record)
         if config.log.progress:
             elapsed = time.time() - t_start
-            frac = step / p.num_timesteps
-            eta = _fmt_time(elapsed / frac * (1 - frac)) if 0 < frac < 1 else ("--:--" if frac <= 0 else "0:00")
+            done = (step - first_step) / max(p.num_timesteps - first_step, 1)
+            eta = _fmt_time(elapsed / done * (1 - done)) if 0 < done < 1 else ("--:--" if done <= 0 else "0:00")
             vx = record.get("eval/mean_forward_velocity")
             say(
-                f"[vnl] step {step:>11,}/{p.num_timesteps:,} ({100 * min(frac, 1):3.0f}%) | "
+                f"[vnl] step {step:>11,}/{p.num_timesteps:,} ({100 * min(step / p.num_timesteps, 1):3.0f}%) | "
                 f"reward {record.get('eval/episode_reward', float('nan')):9.2f} | "
                 + (f"vx {vx:+.2f} m/s | " if vx is not None else "")
                 + f"{record['env_steps_per_sec']:7,.0f} steps/s | "
-                f"elapsed {_fmt_time(elapsed)} | ETA {eta}"
+                f"elapsed {_fmt_time(wall_offset + elapsed)} | ETA {eta}"
             )
-        # Brax calls policy_params_fn (our checkpoint) after the step-0 evaluation and before every
-        # later one: stopping before the first checkpoint would leave nothing to continue from.
-        if stop.is_set() and checkpoint.steps(run_dir):
-            raise _StopRequested
 
-    def policy_params_fn(step: int, make_policy: Any, params: Any) -> None:
-        n = n_params_calls[0]
-        n_params_calls[0] += 1
-        if n % config.log.checkpoint_every == 0 or step >= p.num_timesteps or stop.is_set():
-            checkpoint.save(run_dir, step, params, keep=config.log.keep_checkpoints)
-        if stop.is_set() and n == 0:
-            raise _StopRequested  # stop requested during the step-0 evaluation: checkpoint 0 exists
+    def save(step: int, state: Any, record: dict[str, Any], force: bool) -> None:
+        n = n_evals[0]
+        n_evals[0] += 1
+        if not (force or n % config.log.checkpoint_every == 0 or step >= p.num_timesteps):
+            return
+        meta = {
+            "training_steps_per_epoch": loop.training_steps_per_epoch,
+            "env_steps_per_epoch": loop.env_steps_per_epoch,
+            "training_walltime": loop.training_walltime,
+            "record": record,
+            "wandb_id": tracker.wandb.id if tracker.wandb else None,
+        }
+        checkpoint.save(run_dir, step, loop.params(state), config.log.keep_checkpoints, loop.to_arrays(state), meta)
 
     say(
-        f"[vnl] training {config.env} (preset {config.preset}) on {devices} "
-        f"{jax.default_backend()} device(s) -> {run_dir}"
+        f"[vnl] {'resuming' if restored else 'training'} {config.env} (preset {config.preset}) on "
+        f"{loop.n_devices} {jax.default_backend()} device(s) -> {run_dir}"
+        + (f" from step {restored[0]:,}" if restored else "")
     )
     say("[vnl] compiling (first evaluation follows; on a CPU this takes 1-2 minutes for the ant, ~10 for the rat)...")
     interrupted = False
-    params = None
+    first_step = restored[0] if restored else 0
     try:
         with _stop_on_signals(stop):
-            _, params, _ = ppo.train(
-                environment=env,
-                progress_fn=progress_fn,
-                policy_params_fn=policy_params_fn,
-                **brax_kwargs(config),
-            )
-    except _StopRequested:
-        interrupted = True
+            if restored:
+                state = loop.from_arrays(restored[1])
+                n_evals[0] = 1  # checkpoint_every counts evaluations after the restored one
+            else:
+                state = loop.init(config.seed)
+                state, metrics = loop.evaluate(state, {})
+                record = make_record(0, time.time() - t_start, metrics)
+                save(0, state, record, force=True)
+                log(record)
+            step = loop.env_steps(state)
+            while step < p.num_timesteps:
+                if stop.is_set():
+                    interrupted = True
+                    break
+                state, training_metrics = loop.epoch(state)
+                step = loop.env_steps(state)
+                state, metrics = loop.evaluate(state, training_metrics)
+                record = make_record(step, wall_offset + time.time() - t_start, metrics)
+                save(step, state, record, force=stop.is_set())
+                log(record)
+            interrupted = interrupted or (stop.is_set() and step < p.num_timesteps)
+        params = None if interrupted else loop.params(state)
+        result = TrainResult(
+            run_dir=run_dir,
+            steps=checkpoint.steps(run_dir)[-1] if checkpoint.steps(run_dir) else 0,
+            interrupted=interrupted,
+            final_metrics=records[-1] if records else {},
+            records=records,
+            wall_time=time.time() - t_start,
+            params=params,
+        )
+        if finish is not None and not interrupted:
+            video = finish(run_dir)
+            if video is not None:
+                tracker.upload_video(video, f"{config.env} at step {result.steps:,}")
     finally:
-        writer.close()
-    last = checkpoint.steps(run_dir)
-    steps = last[-1] if last else 0
+        tracker.close()
     if interrupted:
         say(
-            f"[vnl] stopped at step {steps:,}; the last checkpoint is {run_dir}/checkpoints/"
-            f"{steps:012d}. Use it with `vnl eval {run_dir}` or `vnl render {run_dir}`."
+            f"[vnl] stopped at step {result.steps:,}; continue with `vnl train --resume {run_dir}`, or use the "
+            f"checkpoint with `vnl eval {run_dir}` / `vnl render {run_dir}`."
         )
-    return TrainResult(
-        run_dir=run_dir,
-        steps=steps,
-        interrupted=interrupted,
-        final_metrics=records[-1] if records else {},
-        records=records,
-        wall_time=time.time() - t_start,
-        params=params,
-    )
+    return result

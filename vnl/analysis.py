@@ -1,0 +1,91 @@
+"""Analysis of neural recordings (`vnl record` files): PCA of a layer's activity over time.
+
+Only numpy, xarray and matplotlib: the same few lines work on a recording in any notebook.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from vnl.errors import VnlError
+
+
+def open_recording(path: str | Path) -> Any:
+    """The recording at `path` as an xarray.Dataset (loaded into memory)."""
+    import xarray as xr
+
+    path = Path(path)
+    if not path.is_file():
+        raise VnlError(f"recording not found: {path} (write one with `vnl record RUN_DIR`)")
+    try:
+        with xr.open_dataset(path, engine="h5netcdf") as ds:
+            return ds.load()
+    except (OSError, ValueError) as e:
+        raise VnlError(f"{path} is not a readable vnl recording: {e}") from None
+
+
+def layer_names(ds: Any) -> list[str]:
+    return [v for v in ds.data_vars if v.startswith(("policy_", "value_"))]
+
+
+def pca(activity: np.ndarray, n_components: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """PCA of `activity` (samples, units) by SVD of the centred data.
+
+    Returns (scores (samples, k), components (k, units), explained variance ratio (k,)).
+    """
+    x = activity - activity.mean(axis=0, keepdims=True)
+    _, s, vt = np.linalg.svd(x, full_matrices=False)
+    k = min(n_components, vt.shape[0])
+    var = s**2
+    ratio = var[:k] / max(var.sum(), 1e-30)
+    return x @ vt[:k].T, vt[:k], ratio
+
+
+def pca_figure(ds: Any, layer: str, color: str, out: str | Path) -> tuple[Path, np.ndarray]:
+    """Saves a PCA figure of `layer` over the recording's active steps, coloured by `color`.
+
+    Left: the trajectory in the plane of the first two PCs; right: PCs 1-3 over time for
+    episode 0. Returns (path, explained variance ratio of the first 3 PCs).
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    layers = layer_names(ds)
+    if layer not in layers:
+        raise VnlError(f"no layer {layer!r} in the recording; layers: {', '.join(layers)}")
+    colorable = [v for v in ds.data_vars if ds[v].dims == ("episode", "time")]
+    if color not in colorable:
+        raise VnlError(f"cannot colour by {color!r}; per-step variables: {', '.join(colorable)}")
+    act = ds[layer].values  # (E, T, units)
+    mask = ds["active"].values > 0
+    if mask.sum() < 3:
+        raise VnlError("the recording has fewer than 3 active steps; record longer episodes")
+    scores, _, ratio = pca(act[mask].astype(np.float64))
+    c = ds[color].values[mask]
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    ax = axes[0]
+    sc = ax.scatter(scores[:, 0], scores[:, 1], c=c, s=4, cmap="viridis")
+    fig.colorbar(sc, ax=ax, label=color)
+    ax.set_xlabel(f"PC1 ({100 * ratio[0]:.0f}% var.)")
+    ax.set_ylabel(f"PC2 ({100 * ratio[1]:.0f}% var.)" if len(ratio) > 1 else "PC2")
+    ax.set_title(f"{layer}: activity in PC space")
+    ax = axes[1]
+    n0 = int(mask[0].sum())
+    t = ds["time"].values[:n0]
+    for i in range(scores.shape[1]):
+        ax.plot(t, scores[:n0, i], label=f"PC{i + 1}")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("score")
+    ax.set_title("episode 0")
+    ax.legend()
+    fig.suptitle(f"{ds.attrs.get('env', '')} @ step {ds.attrs.get('checkpoint_step', '?')}")
+    fig.tight_layout()
+    out = Path(out)
+    fig.savefig(out, dpi=100)
+    plt.close(fig)
+    return out, ratio

@@ -1,0 +1,207 @@
+"""Neural recordings of a trained virtual animal: `vnl record`.
+
+`record` rolls out a trained run's policy and returns an `xarray.Dataset` with, per episode and
+time step: the observation, the activations of every layer of the policy and value networks, the
+action, the reward and its terms, the env's metrics, and the walker's joint angles, joint
+velocities and body positions. `write` saves it as NetCDF-4 (HDF5, through h5netcdf) with named
+dimensions, readable with xarray or h5py alone.
+
+Timing: variables indexed by `time` t describe the step that starts in state s_t: the observation
+o_t, the network activity computed from o_t, the action a_t chosen from it, the body pose in s_t
+and the reward r_t received on the transition to s_{t+1}. `active` is 1 up to and including the
+step at which the episode ended (later steps repeat a frozen state and should be ignored).
+
+Activations are captured from the very forward pass that chose the action (flax method
+interception of every `Dense` layer of Brax's MLPs): `policy_hidden_<i>` / `value_hidden_<i>` are
+the outputs of hidden layer i after the nonlinearity, the inputs the next layer receives;
+`policy_output` holds the raw output layer (the action distribution's location, then its
+pre-softplus scale; the deterministic action is tanh(location)), `value_output` the value estimate.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jp
+import numpy as np
+
+from vnl.errors import VnlError
+from vnl.policy import LoadedRun
+
+ACTIVATIONS = {"swish": jax.nn.swish, "relu": jax.nn.relu, "tanh": jax.nn.tanh, "elu": jax.nn.elu}
+
+
+def _dense_outputs(apply: Any, *args: Any) -> tuple[jax.Array, dict[str, jax.Array]]:
+    """Calls a Brax network's `apply` and returns (output, {dense layer name: its output})."""
+    from flax import linen
+
+    captured: dict[str, jax.Array] = {}
+
+    def interceptor(next_fun: Any, f_args: Any, f_kwargs: Any, context: Any) -> Any:
+        out = next_fun(*f_args, **f_kwargs)
+        if isinstance(context.module, linen.Dense) and context.method_name == "__call__":
+            captured[context.module.name] = out
+        return out
+
+    with linen.intercept_methods(interceptor):
+        out = apply(*args)
+    return out, captured
+
+
+def network_activity(run: LoadedRun, obs: jax.Array, key: jax.Array, deterministic: bool = True) -> dict[str, Any]:
+    """The action chosen for `obs` (..., obs_size) and every layer's activity on the way.
+
+    Returns {"action": (..., act), "policy_hidden_<i>": (..., units), "policy_output": ...,
+    "value_hidden_<i>": ..., "value_output": (...,)}. The action equals `run.policy(obs, key)`.
+    """
+    from vnl.policy import make_network
+
+    network = make_network(run.config, run.env)
+    normalizer, policy_params, value_params = run.params
+    act = ACTIVATIONS[run.config.network.activation]
+    out: dict[str, Any] = {}
+    for prefix, net, params in (
+        ("policy", network.policy_network, policy_params),
+        ("value", network.value_network, value_params),
+    ):
+        result, dense = _dense_outputs(net.apply, normalizer, params, obs)
+        names = sorted(dense, key=lambda n: int(n.split("_")[-1]))
+        for name in names[:-1]:
+            out[f"{prefix}_{name}"] = act(dense[name])
+        out[f"{prefix}_output"] = dense[names[-1]] if prefix == "policy" else result
+        if prefix == "policy":
+            dist = network.parametric_action_distribution
+            if deterministic:
+                out["action"] = dist.mode(result)
+            else:
+                out["action"] = dist.postprocess(dist.sample_no_postprocessing(result, key))
+    return out
+
+
+def record(run: LoadedRun, episodes: int, steps: int, seed: int = 0, deterministic: bool = True) -> Any:
+    """Rolls out `episodes` episodes of `steps` control steps and returns an xarray.Dataset."""
+    import xarray as xr
+
+    if episodes < 1 or steps < 1:
+        raise VnlError(f"--episodes and --steps must be >= 1, got {episodes} and {steps}")
+    env = run.env
+
+    @jax.jit
+    def go(rng: jax.Array) -> Any:
+        k_reset, k_act = jax.random.split(rng)
+        state = jax.vmap(env.reset)(jax.random.split(k_reset, episodes))
+
+        def body(carry: Any, key: jax.Array) -> Any:
+            state, alive = carry
+            activity = network_activity(run, state.obs, key, deterministic)
+            nxt = jax.vmap(env.step)(state, activity["action"])
+            out = {
+                "observation": state.obs,
+                "qpos": state.data.qpos,
+                "qvel": state.data.qvel,
+                "body_pos": state.data.xpos,
+                "reward": nxt.reward,
+                "done": nxt.done,
+                "active": alive,
+                "metrics": nxt.metrics,
+                **activity,
+            }
+            return (nxt, alive * (1.0 - nxt.done)), out
+
+        keys = jax.random.split(k_act, steps)
+        _, out = jax.lax.scan(body, (state, jp.ones((episodes,))), keys)
+        return out
+
+    raw = jax.device_get(go(jax.random.PRNGKey(seed)))
+    et = lambda x: np.swapaxes(np.asarray(x), 0, 1)  # (T, E, ...) -> (E, T, ...)
+    m = env.mj_model
+    import mujoco
+
+    def names(obj: Any, n: int) -> list[str]:
+        return [mujoco.mj_id2name(m, obj, i) or f"{i}" for i in range(n)]
+
+    obs_labels = [f"{name}[{i}]" for name, w in env.observation_layout() for i in range(w)]
+    if len(obs_labels) != env.observation_size:
+        obs_labels = [str(i) for i in range(env.observation_size)]
+    dims_et = ("episode", "time")
+    data: dict[str, Any] = {
+        "observation": (dims_et + ("observation_feature",), et(raw["observation"])),
+        "action": (dims_et + ("actuator",), et(raw["action"])),
+        "reward": (dims_et, et(raw["reward"])),
+        "done": (dims_et, et(raw["done"])),
+        "active": (dims_et, et(raw["active"])),
+        "qpos": (dims_et + ("qpos_index",), et(raw["qpos"])),
+        "qvel": (dims_et + ("qvel_index",), et(raw["qvel"])),
+        "body_pos": (dims_et + ("body", "xyz"), et(raw["body_pos"])),
+    }
+    for k, v in raw["metrics"].items():
+        data[k.replace("/", "_")] = (dims_et, et(v))
+    layers = []
+    for k in sorted(raw):
+        if k.startswith(("policy_", "value_")):
+            v = et(raw[k])
+            if v.ndim == 2:  # the value output: one unit
+                v = v[..., None]
+            data[k] = (dims_et + (f"{k}_unit",), v)
+            layers.append({"name": k, "units": int(v.shape[-1])})
+    ds = xr.Dataset(
+        data,
+        coords={
+            "episode": np.arange(episodes),
+            "time": np.arange(steps) * env.dt,
+            "observation_feature": obs_labels,
+            "actuator": names(mujoco.mjtObj.mjOBJ_ACTUATOR, m.nu),
+            "body": names(mujoco.mjtObj.mjOBJ_BODY, m.nbody),
+            "xyz": ["x", "y", "z"],
+            "qpos_index": _dof_labels(m, qpos=True),
+            "qvel_index": _dof_labels(m, qpos=False),
+        },
+        attrs={
+            "title": f"vnl neural recording of {run.config.env}",
+            "env": run.config.env,
+            "run_dir": str(run.run_dir),
+            "checkpoint_step": int(run.step),
+            "control_dt": float(env.dt),
+            "deterministic_policy": int(deterministic),
+            "seed": int(seed),
+            "activation_function": run.config.network.activation,
+            "layers": json.dumps(layers),
+            "timing": "time t: observation, activity, action and pose in state s_t; reward of s_t -> s_{t+1}",
+            "active": "1 up to and including the step at which the episode ended",
+        },
+    )
+    for k in raw["metrics"]:
+        ds[k.replace("/", "_")].attrs["metric"] = k
+    for layer in layers:
+        name = layer["name"]
+        kind = "output layer (raw)" if name.endswith("_output") else "hidden layer after the nonlinearity"
+        ds[name].attrs["description"] = kind
+    return ds
+
+
+def _dof_labels(m: Any, qpos: bool) -> list[str]:
+    """One label per qpos (or qvel) coordinate: '<joint>' or '<joint>[k]' for multi-dof joints."""
+    import mujoco
+
+    n = m.nq if qpos else m.nv
+    adr = m.jnt_qposadr if qpos else m.jnt_dofadr
+    labels = [str(i) for i in range(n)]
+    for j in range(m.njnt):
+        name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, j) or f"joint{j}"
+        end = adr[j + 1] if j + 1 < m.njnt else n
+        width = end - adr[j]
+        for k in range(width):
+            labels[adr[j] + k] = name if width == 1 else f"{name}[{k}]"
+    return labels
+
+
+def write(ds: Any, path: str | Path) -> Path:
+    """Writes the dataset as NetCDF-4 (HDF5) via h5netcdf, atomically."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    ds.to_netcdf(tmp, engine="h5netcdf")
+    tmp.replace(path)
+    return path

@@ -1,0 +1,308 @@
+"""vnl's PPO loop: Brax's PPO pieces, composed so that a run can be saved and resumed exactly.
+
+`brax.training.agents.ppo.train` keeps its optimizer state, environment states and PRNG keys in
+local variables, so a run cannot be continued where it stopped (Brax's checkpoints hold the
+network parameters only). This module builds the same algorithm from Brax's own pieces — its
+loss (`ppo.losses.compute_ppo_loss`), gradient function (`gradients.loss_and_pgrad`), unrolls
+(`acting.generate_unroll`), evaluator (`acting.Evaluator`), observation normalizer
+(`acme.running_statistics`) and `TrainingState` — with the same order of operations and the same
+PRNG key splits as `ppo.train` (a test checks the parameters are equal to Brax's), and exposes
+the whole state as a `LoopState`:
+
+- `training`: Brax's `TrainingState` (optimizer state, policy/value params, normalizer, env step
+  count), replicated over the local devices (leading axis = device);
+- `env`: the training environments' states, shape (devices, num_envs / devices, ...);
+- `key`: the host PRNG key that the next epochs split; `eval_key`: the evaluator's key.
+
+`to_arrays` / `from_arrays` turn a `LoopState` into named host arrays and back; the env arrays
+are stored flat over environments, so a checkpoint resumes on a different number of devices.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import time
+from typing import Any
+
+import flax
+import jax
+import jax.numpy as jp
+import numpy as np
+import optax
+from brax.training import acting, gradients
+from brax.training import types as brax_types
+from brax.training.acme import running_statistics, specs
+from brax.training.agents.ppo import losses as ppo_losses
+from brax.training.agents.ppo import networks as ppo_networks
+from brax.training.agents.ppo.train import TrainingState
+
+from vnl.errors import VnlError
+from vnl.train.config import TrainConfig
+
+AXIS = "i"  # the pmap axis over local devices
+
+
+@flax.struct.dataclass
+class LoopState:
+    """Everything a PPO run carries from one epoch to the next (see the module docstring)."""
+
+    training: TrainingState
+    env: Any
+    key: jax.Array
+    eval_key: jax.Array
+
+
+def _strip_weak_type(tree: Any) -> Any:
+    """Same dtypes, not weakly typed: avoids recompiling for Python scalars in user state."""
+    return jax.tree.map(lambda x: jp.asarray(x).astype(jp.asarray(x).dtype), tree)
+
+
+def _unreplicate(tree: Any) -> Any:
+    """Device 0's copy of a replicated tree."""
+    return jax.tree.map(lambda x: x.addressable_shards[0].data.squeeze(0), tree)
+
+
+def epoch_length(config: TrainConfig) -> int:
+    """Training steps per epoch (between two evaluations), as Brax computes it."""
+    p = config.ppo
+    return math.ceil(p.num_timesteps / (max(p.num_evals - 1, 1) * p.env_steps_per_training_step))
+
+
+class PPOLoop:
+    """Brax PPO on `env` with `config`'s hyperparameters, one epoch at a time.
+
+    Args:
+      env: an unwrapped vnl `Env` (it is wrapped with `vnl.envs.wrappers.wrap_for_training`).
+      config: the run's config.
+      training_steps_per_epoch: training steps between evaluations; default `epoch_length(config)`
+        (a resumed run passes the value it started with).
+    """
+
+    def __init__(self, env: Any, config: TrainConfig, training_steps_per_epoch: int | None = None) -> None:
+        from vnl.envs.wrappers import wrap_for_training
+        from vnl.policy import make_network
+
+        p = config.ppo
+        self.config = config
+        self.devices = jax.local_devices()
+        self.n_devices = len(self.devices)
+        self.process_count = jax.process_count()
+        if p.num_envs % (self.n_devices * self.process_count):
+            raise VnlError(
+                f"ppo.num_envs ({p.num_envs}) must be a multiple of the number of devices "
+                f"({self.n_devices * self.process_count})"
+            )
+        self.episode_length = config.episode_length()
+        self.env = wrap_for_training(env, episode_length=self.episode_length, action_repeat=p.action_repeat)
+        self.observation_size = env.observation_size
+        self.action_size = env.action_size
+        self.training_steps_per_epoch = training_steps_per_epoch or epoch_length(config)
+        self.env_steps_per_training_step = p.env_steps_per_training_step
+        self.env_steps_per_epoch = self.training_steps_per_epoch * self.env_steps_per_training_step
+
+        self.network = make_network(config, env)
+        self.make_policy = ppo_networks.make_inference_fn(self.network)
+        adam = optax.adam(learning_rate=p.learning_rate)
+        self.optimizer = (
+            optax.chain(optax.clip_by_global_norm(p.max_grad_norm), adam) if p.max_grad_norm is not None else adam
+        )
+        loss_fn = functools.partial(
+            ppo_losses.compute_ppo_loss,
+            ppo_network=self.network,
+            entropy_cost=p.entropy_cost,
+            discounting=p.discounting,
+            reward_scaling=p.reward_scaling,
+            gae_lambda=p.gae_lambda,
+            clipping_epsilon=p.clipping_epsilon,
+        )
+        self._loss_and_pgrad = gradients.loss_and_pgrad(loss_fn, pmap_axis_name=AXIS, has_aux=True)
+        self._epoch = jax.pmap(self._training_epoch, axis_name=AXIS, donate_argnums=(0, 1))
+        self._reset = jax.pmap(self.env.reset, axis_name=AXIS)
+        eval_env = wrap_for_training(env, episode_length=self.episode_length, action_repeat=p.action_repeat)
+        self._evaluator = acting.Evaluator(
+            eval_env,
+            functools.partial(self.make_policy, deterministic=p.deterministic_eval),
+            num_eval_envs=p.num_eval_envs,
+            episode_length=self.episode_length,
+            action_repeat=p.action_repeat,
+            key=jax.random.PRNGKey(0),  # replaced by LoopState.eval_key before every evaluation
+        )
+        self.training_walltime = 0.0
+
+    # ---- state ---------------------------------------------------------------------------------
+
+    def init(self, seed: int) -> LoopState:
+        """The state before training, with Brax's key splits for `seed`."""
+        p = self.config.ppo
+        key = jax.random.PRNGKey(seed)
+        global_key, local_key = jax.random.split(key)
+        local_key = jax.random.fold_in(local_key, jax.process_index())
+        local_key, key_env, eval_key = jax.random.split(local_key, 3)
+        key_policy, key_value = jax.random.split(global_key)
+        key_envs = jax.random.split(key_env, p.num_envs // self.process_count)
+        key_envs = jp.reshape(key_envs, (self.n_devices, -1) + key_envs.shape[1:])
+        env_state = self._reset(key_envs)
+        params = ppo_losses.PPONetworkParams(
+            policy=self.network.policy_network.init(key_policy),
+            value=self.network.value_network.init(key_value),
+        )
+        obs_spec = specs.Array((self.observation_size,), jp.dtype("float32"))
+        training = TrainingState(
+            optimizer_state=self.optimizer.init(params),
+            params=params,
+            normalizer_params=running_statistics.init_state(obs_spec),
+            env_steps=brax_types.UInt64(hi=0, lo=0),
+        )
+        training = jax.device_put_replicated(training, self.devices)
+        return LoopState(training=training, env=env_state, key=local_key, eval_key=eval_key)
+
+    def to_arrays(self, state: LoopState) -> dict[str, np.ndarray]:
+        """Host arrays named by their path in the state; env arrays flat over environments."""
+        host = LoopState(
+            training=jax.device_get(_unreplicate(state.training)),
+            env=jax.tree.map(lambda x: np.asarray(x).reshape((x.shape[0] * x.shape[1],) + x.shape[2:]), state.env),
+            key=np.asarray(state.key),
+            eval_key=np.asarray(state.eval_key),
+        )
+        leaves = jax.tree_util.tree_flatten_with_path(host)[0]
+        return {jax.tree_util.keystr(path): np.asarray(leaf) for path, leaf in leaves}
+
+    def from_arrays(self, arrays: dict[str, np.ndarray]) -> LoopState:
+        """The inverse of `to_arrays`; raises `VnlError` if the arrays belong to another setup."""
+        template = self.init(0)
+        flat = self.to_arrays(template)
+        missing = sorted(set(flat) - set(arrays))
+        extra = sorted(set(arrays) - set(flat))
+        bad = [k for k in flat if k in arrays and (arrays[k].shape, arrays[k].dtype) != (flat[k].shape, flat[k].dtype)]
+        if missing or extra or bad:
+            detail = "; ".join(
+                f"{name}: {', '.join(keys[:3])}{' ...' if len(keys) > 3 else ''}"
+                for name, keys in (("missing", missing), ("unexpected", extra), ("different shape", bad))
+                if keys
+            )
+            raise VnlError(
+                "the saved training state does not match this env and config "
+                f"({detail}); was the env, network or ppo.num_envs changed?"
+            )
+        host = LoopState(
+            training=_unreplicate(template.training),
+            env=jax.tree.map(lambda x: x[0], template.env),
+            key=template.key,
+            eval_key=template.eval_key,
+        )
+        paths, treedef = jax.tree_util.tree_flatten_with_path(host)
+        leaves = [arrays[jax.tree_util.keystr(path)] for path, _ in paths]
+        restored = jax.tree_util.tree_unflatten(treedef, leaves)
+        per_device = self.config.ppo.num_envs // self.process_count // self.n_devices
+        env = jax.tree.map(lambda x: jp.asarray(x.reshape((self.n_devices, per_device) + x.shape[1:])), restored.env)
+        shards = [jax.tree.map(lambda x, i=i: x[i], env) for i in range(self.n_devices)]
+        env = jax.device_put_sharded(shards, self.devices)
+        return LoopState(
+            training=jax.device_put_replicated(jax.tree.map(jp.asarray, restored.training), self.devices),
+            env=env,
+            key=jp.asarray(restored.key),
+            eval_key=jp.asarray(restored.eval_key),
+        )
+
+    def params(self, state: LoopState) -> tuple[Any, Any, Any]:
+        """Brax's `(normalizer_params, policy_params, value_params)` on the host."""
+        t = _unreplicate(state.training)
+        return jax.device_get((t.normalizer_params, t.params.policy, t.params.value))
+
+    def env_steps(self, state: LoopState) -> int:
+        return int(_unreplicate(state.training).env_steps.to_numpy())
+
+    # ---- training ------------------------------------------------------------------------------
+
+    def epoch(self, state: LoopState) -> tuple[LoopState, dict[str, float]]:
+        """One epoch of `training_steps_per_epoch` training steps; returns Brax's training metrics."""
+        t = time.time()
+        epoch_key, key = jax.random.split(state.key)
+        epoch_keys = jax.random.split(epoch_key, self.n_devices)
+        training, env = _strip_weak_type((state.training, state.env))
+        training, env, metrics = self._epoch(training, env, epoch_keys)
+        training, env = _strip_weak_type((training, env))
+        metrics = jax.tree.map(lambda x: float(np.mean(np.asarray(x))), metrics)
+        elapsed = time.time() - t
+        self.training_walltime += elapsed
+        metrics = {
+            "training/sps": self.env_steps_per_epoch / elapsed,
+            "training/walltime": self.training_walltime,
+            **{f"training/{k}": v for k, v in metrics.items()},
+        }
+        return state.replace(training=training, env=env, key=key), metrics
+
+    def evaluate(self, state: LoopState, training_metrics: dict[str, float]) -> tuple[LoopState, dict[str, Any]]:
+        """Brax's evaluation (`num_eval_envs` episodes) of the current policy."""
+        self._evaluator._key = state.eval_key  # the Evaluator keeps its key privately
+        metrics = self._evaluator.run_evaluation(self.params(state), training_metrics)
+        return state.replace(eval_key=self._evaluator._key), metrics
+
+    def _training_epoch(self, training: TrainingState, env_state: Any, key: jax.Array) -> tuple[Any, Any, Any]:
+        (training, env_state, _), metrics = jax.lax.scan(
+            self._training_step, (training, env_state, key), (), length=self.training_steps_per_epoch
+        )
+        return training, env_state, jax.tree.map(jp.mean, metrics)
+
+    def _training_step(self, carry: tuple[Any, Any, jax.Array], _: Any) -> tuple[Any, Any]:
+        p = self.config.ppo
+        training, env_state, key = carry
+        key_sgd, key_unroll, new_key = jax.random.split(key, 3)
+        policy = self.make_policy((training.normalizer_params, training.params.policy, training.params.value))
+
+        def unroll(c: tuple[Any, jax.Array], _: Any) -> tuple[Any, Any]:
+            s, k = c
+            k, next_k = jax.random.split(k)
+            s, data = acting.generate_unroll(
+                self.env,
+                s,
+                policy,
+                k,
+                p.unroll_length,
+                extra_fields=("truncation", "episode_metrics", "episode_done"),
+            )
+            return (s, next_k), data
+
+        (env_state, _), data = jax.lax.scan(
+            unroll, (env_state, key_unroll), (), length=p.batch_size * p.num_minibatches // p.num_envs
+        )
+        # (batch_size * num_minibatches, unroll_length, ...)
+        data = jax.tree.map(lambda x: jp.swapaxes(x, 1, 2), data)
+        data = jax.tree.map(lambda x: jp.reshape(x, (-1,) + x.shape[2:]), data)
+        normalizer = running_statistics.update(training.normalizer_params, data.observation, pmap_axis_name=AXIS)
+        (opt_state, params, _), metrics = jax.lax.scan(
+            functools.partial(self._sgd_step, data=data, normalizer=normalizer),
+            (training.optimizer_state, training.params, key_sgd),
+            (),
+            length=p.num_updates_per_batch,
+        )
+        training = TrainingState(
+            optimizer_state=opt_state,
+            params=params,
+            normalizer_params=normalizer,
+            env_steps=training.env_steps + self.env_steps_per_training_step,
+        )
+        return (training, env_state, new_key), metrics
+
+    def _sgd_step(self, carry: tuple[Any, Any, jax.Array], _: Any, data: Any, normalizer: Any) -> tuple[Any, Any]:
+        n = self.config.ppo.num_minibatches
+        opt_state, params, key = carry
+        key, key_perm, key_grad = jax.random.split(key, 3)
+        shuffled = jax.tree.map(lambda x: jp.reshape(jax.random.permutation(key_perm, x), (n, -1) + x.shape[1:]), data)
+        (opt_state, params, _), metrics = jax.lax.scan(
+            functools.partial(self._minibatch_step, normalizer=normalizer),
+            (opt_state, params, key_grad),
+            shuffled,
+            length=n,
+        )
+        return (opt_state, params, key), metrics
+
+    def _minibatch_step(self, carry: tuple[Any, Any, jax.Array], data: Any, normalizer: Any) -> tuple[Any, Any]:
+        opt_state, params, key = carry
+        key, key_loss = jax.random.split(key)
+        (_, metrics), grads = self._loss_and_pgrad(params, normalizer, data, key_loss)
+        metrics["learning_rate"] = jp.array(self.config.ppo.learning_rate)
+        updates, opt_state = self.optimizer.update(grads, opt_state)
+        params = optax.apply_updates(params, updates)
+        return (opt_state, params, key), metrics
