@@ -1,9 +1,11 @@
-"""Training env steps/s: `vnl train` (our adapter: metrics, checkpoints, progress) vs calling
-`brax.training.agents.ppo.train` directly on the same env and hyperparameters, in one process.
+"""Training env steps/s: `vnl train` (vnl's resumable PPO loop with metrics, full-state
+checkpoints, progress) vs calling `brax.training.agents.ppo.train` directly on the same env and
+hyperparameters, in one process.
 
-Both use the same compiled-from-scratch setup; steps/s is Brax's own `training/sps` (env steps
-per second of the training epochs, compile excluded), averaged over the evaluations after the
-first. Target ratio vnl/brax >= 0.95.
+Both use the same compiled-from-scratch setup; steps/s is `training/sps` (env steps per second of
+the training epochs, compile excluded), averaged over the evaluations after the first. Target
+ratio vnl/brax >= 0.95. The total wall time of each run (compile, evaluations and, for vnl,
+checkpoint writes included) and the size of vnl's checkpoints are printed too.
 
     .venv/bin/python benchmarks/ppo_throughput.py [--env ant_run] [--steps 600000]
 """
@@ -13,6 +15,7 @@ from __future__ import annotations
 import argparse
 import statistics
 import tempfile
+import time
 from pathlib import Path
 
 import jax
@@ -36,8 +39,14 @@ def brax_direct(cfg: train_config.TrainConfig) -> list[float]:
 
 
 def vnl_adapter(cfg: train_config.TrainConfig) -> list[float]:
+    from vnl.io import checkpoint
+
     with tempfile.TemporaryDirectory() as d:
         result = ppo.train(cfg, Path(d) / "run", say=lambda s: None)
+        last = checkpoint.step_dir(result.run_dir, result.steps)
+        size = sum(f.stat().st_size for f in last.rglob("*") if f.is_file())
+        state = (last / checkpoint.TRAIN_STATE).stat().st_size
+        print(f"  vnl checkpoint: {size / 1e6:.1f} MB ({state / 1e6:.1f} MB train_state.npz)")
     return [r["env_steps_per_sec"] for r in result.records if r["env_steps_per_sec"] > 0]
 
 
@@ -60,9 +69,13 @@ def main() -> None:
     means: dict[str, list[float]] = {label: [] for label, _ in runners}
     for _ in range(args.repeats):
         for label, fn in runners:
+            t = time.time()
             sps = fn(cfg)
             means[label].append(statistics.mean(sps[1:] or sps))
-            print(f"  {label}: per-eval steps/s {', '.join(f'{s:,.0f}' for s in sps)}", flush=True)
+            print(
+                f"  {label}: per-eval steps/s {', '.join(f'{s:,.0f}' for s in sps)}; wall time {time.time() - t:.0f} s",
+                flush=True,
+            )
     print(f"{'runner':<16} {'env steps/s (mean of repeats)':>30}")
     for label, values in means.items():
         print(f"{label:<16} {statistics.mean(values):>30,.0f}")

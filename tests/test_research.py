@@ -208,7 +208,9 @@ def test_unreadable_training_state_falls_back_to_an_older_checkpoint(reference, 
 def test_mismatched_training_state_is_a_clear_error(reference):
     ref, _ = reference
     _, arrays, _ = checkpoint.load_train_state(ref)
-    config = train_config.build("test_point", "tiny", file_values={**SETTINGS, "ppo": {**SETTINGS["ppo"], "num_envs": 32}})
+    config = train_config.build(
+        "test_point", "tiny", file_values={**SETTINGS, "ppo": {**SETTINGS["ppo"], "num_envs": 32}}
+    )
     loop = PPOLoop(registry.entry("test_point").factory(config.resolved_env_config()), config)
     with pytest.raises(VnlError, match="does not match this env and config"):
         loop.from_arrays(arrays)
@@ -237,16 +239,28 @@ def test_tensorboard_and_wandb_offline(tmp_path, monkeypatch):
     config = train_config.build(
         "test_point",
         "tiny",
-        file_values={**SETTINGS, "log": {**SETTINGS["log"], "tensorboard": True, "wandb": True, "wandb_mode": "offline"}},
+        file_values={
+            **SETTINGS,
+            "log": {**SETTINGS["log"], "tensorboard": True, "wandb": True, "wandb_mode": "offline"},
+        },
     )
     out = tmp_path / "tracked"
-    ppo.train(config, out, say=quiet)
+
+    def finish(run_dir):  # stands in for the final-policy video, which needs OpenGL
+        from vnl.io import video
+
+        path = run_dir / "final_policy.mp4"
+        video.write_mp4(np.random.default_rng(0).integers(0, 255, (4, 32, 32, 3), np.uint8), str(path), fps=4)
+        return path
+
+    ppo.train(config, out, say=quiet, finish=finish)
     records = metrics_io.read(out / "metrics.jsonl")
     scalars = _tensorboard_scalars(out / "tensorboard")
     for key in ("eval/episode_reward", "eval/episode_reward/distance"):
         assert {r["step"]: pytest.approx(r[key], rel=1e-6) for r in records} == scalars[key]
     runs = list((out / "wandb").glob("offline-run-*"))
     assert len(runs) == 1 and list(runs[0].glob("*.wandb"))
+    assert list(runs[0].rglob("media/videos/*.mp4"))  # the final video was logged
 
 
 def test_a_failing_sink_warns_once_and_keeps_the_jsonl(tmp_path, monkeypatch):
@@ -293,7 +307,12 @@ def test_recording_file_is_self_describing(recording):
     ds2 = analysis.open_recording(path)
     layers = json.loads(ds2.attrs["layers"])
     assert [layer["name"] for layer in layers] == [
-        "policy_hidden_0", "policy_hidden_1", "policy_output", "value_hidden_0", "value_hidden_1", "value_output"
+        "policy_hidden_0",
+        "policy_hidden_1",
+        "policy_output",
+        "value_hidden_0",
+        "value_hidden_1",
+        "value_output",
     ]
     assert ds2["observation"].dims == ("episode", "time", "observation_feature")
     assert ds2.attrs["checkpoint_step"] == 2 * K
