@@ -77,7 +77,9 @@ class Layout:
 jax.tree_util.register_dataclass(Layout, data_fields=["start", "length"], meta_fields=[])
 
 
-def build(params: GapsParams, rgba: tuple[float, ...] = (0.5, 0.5, 0.5, 1.0)) -> mjcf.RootElement:
+def build(
+    params: GapsParams, rgba: tuple[float, ...] = (0.5, 0.5, 0.5, 1.0), camera_x: float | None = None
+) -> mjcf.RootElement:
     """The corridor's MJCF: headlight, skybox and the window of mocap platform boxes."""
     root = arena_base.new_arena(
         "gaps_corridor", "platform", (0.35, 0.38, 0.42), (0.45, 0.48, 0.52), (4, 4), texuniform=True
@@ -108,8 +110,12 @@ def build(params: GapsParams, rgba: tuple[float, ...] = (0.5, 0.5, 0.5, 1.0)) ->
             conaffinity=1 if collide else 0,
             group=0,
         )
-    # A camera looking down the corridor from behind the start.
-    root.worldbody.add("camera", name="corridor", pos=[-1.0, 0, 1.0], xyaxes=[0, -1, 0, 0.5, 0, 1])
+    # `corridor`: a fixed camera 30° down the corridor, half a corridor width behind x = camera_x
+    # (the walker's spawn point): the walker at the start and the next few metres of platforms and
+    # gaps are in view.
+    x = params.start_length - params.corridor_width / 2 if camera_x is None else camera_x
+    d = params.corridor_width / 2
+    root.worldbody.add("camera", name="corridor", pos=[x - d, 0, 0.7 * d], xyaxes=[0, -1, 0, 0.5, 0, 0.866])
     return root
 
 

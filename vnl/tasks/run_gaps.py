@@ -102,7 +102,7 @@ class RunGaps(WalkerTask):
 
     def __init__(self, config: RunGapsConfig) -> None:
         walker = build_walker(config)
-        arena = gaps.build(config.corridor)
+        arena = gaps.build(config.corridor, camera_x=config.spawn_x)
         model, report = compile_world(walker, arena)
         super().__init__(config, walker, model, report)
         self._params = config.corridor
