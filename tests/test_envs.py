@@ -305,6 +305,8 @@ def test_rodent_stands_on_the_floor_with_zero_action():
 
 @pytest.mark.xdist_group("rodent_run_gaps")
 def test_gaps_layout_redrawn_per_reset_and_in_the_model():
+    from vnl.arenas import gaps
+
     e = env("rodent_run_gaps")
     s0, traj, _ = random_rollout("rodent_run_gaps")
     mocap = traj.data["mocap_pos"]
@@ -312,8 +314,11 @@ def test_gaps_layout_redrawn_per_reset_and_in_the_model():
     assert np.abs(mocap[0, 0] - mocap[0, 1]).max() > 1e-3
     n = e.corridor.window * e.corridor.pieces
     # Every collidable window box is at the platform height or parked below.
-    z = mocap[..., :n, 2].ravel()
-    assert (np.isclose(z, -0.16) | np.isclose(z, -50.0)).all()
+    # Piece k of a platform sits k * PIECE_STEP lower (no coplanar faces, see gaps.build).
+    z = mocap[..., :n, 2].reshape(*mocap.shape[:2], e.corridor.window, e.corridor.pieces)
+    top = -gaps.THICKNESS - np.arange(e.corridor.pieces) * gaps.PIECE_STEP
+    assert (np.isclose(z, top, rtol=0, atol=1e-6) | np.isclose(z, -50.0)).all()
+    assert np.isclose(z, top, rtol=0, atol=1e-6).any()
 
 
 @pytest.mark.xdist_group("rodent_run_gaps")
