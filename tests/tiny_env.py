@@ -28,6 +28,7 @@ XML = """
 class PointConfig:
     episode_length: int = 40
     target: float = 1.0
+    blow_up_above: float = 2.0  # an action above this overflows the physics (never, by default)
 
 
 class PointMass(Env):
@@ -40,12 +41,15 @@ class PointMass(Env):
         x0 = jax.random.uniform(rng, (1,), minval=-0.2, maxval=0.2)
         data = mjx.forward(self.mjx_model, mjx.make_data(self.mjx_model).replace(qpos=x0))
         zero = jp.zeros(())
-        return State(data, self._obs(data), zero, zero, {"reward/distance": zero}, {})
+        return State(data, self._obs(data), zero, zero, {"reward/distance": zero, "physics_nan": zero}, {})
 
     def step(self, state: State, action: jax.Array) -> State:
-        data, blew_up = self.physics_step(state.data, self.sanitize_action(action))
+        # Above `blow_up_above`, a force of 1e39 (inf in float32) is applied: the physics overflows.
+        push = jp.where(action[0] > self.config.blow_up_above, jp.float32(jp.inf), 0.0)
+        data = state.data.replace(qfrc_applied=jp.full_like(state.data.qfrc_applied, push))
+        data, blew_up = self.physics_step(data, self.sanitize_action(action))
         reward = -jp.abs(data.qpos[0] - self.config.target)
-        metrics = {**state.metrics, "reward/distance": reward}
+        metrics = {**state.metrics, "reward/distance": reward, "physics_nan": blew_up}
         return state.replace(data=data, obs=self._obs(data), reward=reward, done=blew_up, metrics=metrics)
 
     def _obs(self, data: mjx.Data) -> jax.Array:
@@ -54,3 +58,6 @@ class PointMass(Env):
 
 def register() -> None:
     registry.register("test_point", PointMass, PointConfig(), "test-only point mass")
+    registry.register(
+        "test_point_unstable", PointMass, PointConfig(blow_up_above=0.8), "test-only point mass that blows up"
+    )

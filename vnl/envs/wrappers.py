@@ -51,10 +51,19 @@ def wrap_for_training(
     episode_length: int = 1000,
     action_repeat: int = 1,
     randomization_fn: Callable[..., Any] | None = None,
+    axis_name: str | None = None,
 ) -> brax_training.Wrapper:
-    """Vmap + episode limit + auto-reset; the `wrap_env_fn` hook of `brax...ppo.train`."""
-    if randomization_fn is not None:
-        raise NotImplementedError("domain randomization is not supported yet")
-    env = brax_training.VmapWrapper(env)
+    """Vmap + episode limit + auto-reset; the `wrap_env_fn` hook of `brax...ppo.train`.
+
+    `randomization_fn(mjx_model) -> (batched_model, in_axes)` (Brax's hook with its rng bound,
+    see `vnl.envs.randomize`) gives every env its own physical parameters; `axis_name` is the
+    pmap axis when that batch spans all devices.
+    """
+    if randomization_fn is None:
+        env = brax_training.VmapWrapper(env)
+    else:
+        from vnl.envs.randomize import RandomizedVmapWrapper
+
+        env = RandomizedVmapWrapper(env, randomization_fn, axis_name=axis_name)
     env = brax_training.EpisodeWrapper(env, episode_length, action_repeat)
     return AutoResetWrapper(env)

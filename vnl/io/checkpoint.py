@@ -67,19 +67,23 @@ def save(
     final = step_dir(run_dir, step)
     tmp = root / f".tmp-{step:012d}-{os.getpid()}"
     shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir()
-    params = jax.device_get(params)
-    checkpointer = ocp.PyTreeCheckpointer()
-    checkpointer.save((tmp / PARAMS).absolute(), params, save_args=orbax_utils.save_args_from_target(params))
-    if train_state is not None:
-        with open(tmp / TRAIN_STATE, "wb") as f:
-            np.savez(f, **train_state)
+    try:
+        tmp.mkdir()
+        params = jax.device_get(params)
+        checkpointer = ocp.PyTreeCheckpointer()
+        checkpointer.save((tmp / PARAMS).absolute(), params, save_args=orbax_utils.save_args_from_target(params))
+        if train_state is not None:
+            with open(tmp / TRAIN_STATE, "wb") as f:
+                np.savez(f, **train_state)
+                f.flush()
+                os.fsync(f.fileno())
+        with open(tmp / META, "w") as f:
+            json.dump({"step": int(step), **(meta or {})}, f)
             f.flush()
             os.fsync(f.fileno())
-    with open(tmp / META, "w") as f:
-        json.dump({"step": int(step), **(meta or {})}, f)
-        f.flush()
-        os.fsync(f.fileno())
+    except BaseException:  # disk full, Ctrl-C mid-write, ...: leave no partial checkpoint behind
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
     if final.exists():  # an older write of the same step (e.g. a resumed run redoing it)
         shutil.rmtree(final)
     os.rename(tmp, final)

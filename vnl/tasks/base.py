@@ -222,8 +222,6 @@ class WalkerTask(Env):
         self._joint_qpos = np.asarray(qpos_idx, dtype=int)
         self._joint_qvel = np.asarray(qvel_idx, dtype=int)
         self._free_qpos = _root_free_qposadr(model) if not walker.standalone else None
-        mass = model.body_mass[self._walker_bodies]
-        self._subtree_mass_frac = jp.asarray(mass / mass.sum(), dtype=jp.float32)
         self._body_rootid = np.asarray(model.body_rootid)
 
     @staticmethod
@@ -274,7 +272,8 @@ class WalkerTask(Env):
         ref = data.subtree_com[self._body_rootid[b]]
         ang, lin = data.cvel[b, :3], data.cvel[b, 3:]
         vel = lin + jp.cross(ang, data.xipos[b] - ref)
-        return self._subtree_mass_frac @ vel
+        mass = self._mjx_model.body_mass[b]  # the (possibly randomized) model's masses
+        return (mass / mass.sum()) @ vel
 
     def root_velocity_local(self, data: mjx.Data) -> tuple[jax.Array, jax.Array]:
         """(linear, angular) velocity of the root body's frame in that frame, each (3,).

@@ -11,6 +11,7 @@ from typing import Any, Literal
 
 from vnl import config as config_lib
 from vnl.envs import registry
+from vnl.envs.randomize import RandomizeConfig
 from vnl.errors import VnlError
 
 
@@ -141,6 +142,7 @@ class TrainConfig:
     ppo: PPOConfig = PPOConfig()
     network: NetworkConfig = NetworkConfig()
     log: LogConfig = LogConfig()
+    randomize: RandomizeConfig = RandomizeConfig()  # domain randomization (vnl.envs.randomize)
 
     def validate(self) -> None:
         if self.preset not in PRESETS:

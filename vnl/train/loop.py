@@ -94,7 +94,14 @@ class PPOLoop:
                 f"({self.n_devices * self.process_count})"
             )
         self.episode_length = config.episode_length()
-        self.env = wrap_for_training(env, episode_length=self.episode_length, action_repeat=p.action_repeat)
+        train_models, eval_models = self._randomized_models(env)
+        self.env = wrap_for_training(
+            env,
+            episode_length=self.episode_length,
+            action_repeat=p.action_repeat,
+            randomization_fn=train_models,
+            axis_name=AXIS,
+        )
         self.observation_size = env.observation_size
         self.action_size = env.action_size
         self.training_steps_per_epoch = training_steps_per_epoch or epoch_length(config)
@@ -119,7 +126,9 @@ class PPOLoop:
         self._loss_and_pgrad = gradients.loss_and_pgrad(loss_fn, pmap_axis_name=AXIS, has_aux=True)
         self._epoch = jax.pmap(self._training_epoch, axis_name=AXIS, donate_argnums=(0, 1))
         self._reset = jax.pmap(self.env.reset, axis_name=AXIS)
-        eval_env = wrap_for_training(env, episode_length=self.episode_length, action_repeat=p.action_repeat)
+        eval_env = wrap_for_training(
+            env, episode_length=self.episode_length, action_repeat=p.action_repeat, randomization_fn=eval_models
+        )
         self._evaluator = acting.Evaluator(
             eval_env,
             functools.partial(self.make_policy, deterministic=p.deterministic_eval),
@@ -129,6 +138,29 @@ class PPOLoop:
             key=jax.random.PRNGKey(0),  # replaced by LoopState.eval_key before every evaluation
         )
         self.training_walltime = 0.0
+
+    def _randomized_models(self, env: Any) -> tuple[Any, Any]:
+        """Brax-style `randomization_fn(model)`s for the training and the evaluation envs (None
+        when `config.randomize` is off); sets `self.randomization` (mean/min/max of each factor).
+
+        The draws depend only on the seed (and the host's index), so a resumed run gets the same
+        worlds back.
+        """
+        from vnl.envs import randomize
+
+        self.randomization: dict[str, dict[str, float]] = {}
+        cfg = self.config.randomize
+        if not cfg.enabled:
+            return None, None
+        fn = randomize.randomizer(cfg)
+        key = jax.random.fold_in(jax.random.PRNGKey(self.config.seed), 0x52414E44)  # "RAND"
+        key = jax.random.fold_in(key, jax.process_index())
+        key_train, key_eval = jax.random.split(key)
+        n_train = self.config.ppo.num_envs // self.process_count
+        train = fn(env.mjx_model, jax.random.split(key_train, n_train))
+        evaluation = fn(env.mjx_model, jax.random.split(key_eval, self.config.ppo.num_eval_envs))
+        self.randomization = randomize.summary(env.mjx_model, train[0], cfg)
+        return (lambda _: train), (lambda _: evaluation)
 
     # ---- state ---------------------------------------------------------------------------------
 

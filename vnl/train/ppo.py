@@ -12,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import functools
+import json
 import os
 import shutil
 import signal
@@ -267,6 +268,39 @@ def resume(
     return _run(config, run_dir, (step, arrays, meta), say, finish)
 
 
+def checkpoint_bytes(config: TrainConfig, env: Any) -> int:
+    """Estimated size of one checkpoint, from shapes only (nothing is compiled).
+
+    The training state holds every env's state twice (current and first, for auto-reset); the
+    parameters are stored three times (params and Adam's two moments) plus once more in params/.
+    """
+    import jax
+    import numpy as np
+
+    from vnl.policy import make_network
+
+    state = jax.eval_shape(env.reset, jax.ShapeDtypeStruct((2,), np.uint32))
+    per_env = sum(int(np.prod(x.shape)) * x.dtype.itemsize for x in jax.tree.leaves(state))
+    network = make_network(config, env)
+    key = jax.ShapeDtypeStruct((2,), np.uint32)
+    params = jax.eval_shape(lambda k: (network.policy_network.init(k), network.value_network.init(k)), key)
+    n_params = sum(int(np.prod(x.shape)) * x.dtype.itemsize for x in jax.tree.leaves(params))
+    return 2 * config.ppo.num_envs * per_env + 4 * n_params
+
+
+def check_disk_space(run_dir: Path, config: TrainConfig, env: Any) -> None:
+    """Fails before compiling when the disk cannot hold the checkpoints the run will keep."""
+    keep = config.log.keep_checkpoints or config.ppo.num_evals
+    need = (min(keep, config.ppo.num_evals) + 1) * checkpoint_bytes(config, env) + (64 << 20)
+    free = shutil.disk_usage(run_dir).free
+    if free < need:
+        raise VnlError(
+            f"not enough free disk space in {run_dir}: {free / 2**20:,.0f} MiB free, this run needs about "
+            f"{need / 2**20:,.0f} MiB for its checkpoints; free some space, use another --out, or keep fewer "
+            f"checkpoints (--set log.keep_checkpoints=1)"
+        )
+
+
 def _check_devices(config: TrainConfig) -> None:
     import jax
 
@@ -293,6 +327,7 @@ def _run(
 
     p = config.ppo
     env = registry.entry(config.env).factory(config.resolved_env_config())
+    check_disk_space(run_dir, config, env)
     epoch_steps = restored[2]["training_steps_per_epoch"] if restored else None
     loop = PPOLoop(env, config, training_steps_per_epoch=epoch_steps)
     stop = threading.Event()
@@ -337,13 +372,32 @@ def _run(
             "record": record,
             "wandb_id": tracker.wandb.id if tracker.wandb else None,
         }
-        checkpoint.save(run_dir, step, loop.params(state), config.log.keep_checkpoints, loop.to_arrays(state), meta)
+        try:
+            checkpoint.save(run_dir, step, loop.params(state), config.log.keep_checkpoints, loop.to_arrays(state), meta)
+        except OSError as e:
+            good = checkpoint.steps(run_dir)
+            raise VnlError(
+                f"could not write the checkpoint of step {step:,} in {run_dir}: {e.strerror or e}. "
+                + (
+                    f"The last good checkpoint (step {good[-1]:,}) and metrics.jsonl are intact; free some space "
+                    f"and continue with `vnl train --resume {run_dir}`."
+                    if good
+                    else "Free some space and start again."
+                )
+            ) from None
 
     say(
         f"[vnl] {'resuming' if restored else 'training'} {config.env} (preset {config.preset}) on "
         f"{loop.n_devices} {jax.default_backend()} device(s) -> {run_dir}"
         + (f" from step {restored[0]:,}" if restored else "")
     )
+    for name, stats in loop.randomization.items():
+        say(
+            f"[vnl] randomize.{name}: factor mean {stats['mean']:.3f}, min {stats['min']:.3f}, "
+            f"max {stats['max']:.3f} over {p.num_envs} envs"
+        )
+    if loop.randomization and not restored:
+        (run_dir / "randomization.json").write_text(json.dumps(loop.randomization, indent=2) + "\n")
     say("[vnl] compiling (first evaluation follows; on a CPU this takes 1-2 minutes for the ant, ~10 for the rat)...")
     interrupted = False
     first_step = restored[0] if restored else 0

@@ -1,0 +1,313 @@
+"""Scale and robustness: domain randomization, several devices, faults and bad input."""
+
+import functools
+import json
+import random
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import jax
+import jax.numpy as jp
+import mujoco
+import numpy as np
+import pytest
+from mujoco import mjx
+from tiny_env import XML as POINT_XML
+from tiny_env import register
+
+from vnl import config as config_lib
+from vnl.envs import randomize, registry
+from vnl.envs.wrappers import wrap_for_training
+from vnl.errors import VnlError
+from vnl.io import checkpoint
+from vnl.io import metrics as metrics_io
+from vnl.train import config as train_config
+from vnl.train import ppo
+
+pytestmark = pytest.mark.xdist_group("robustness")
+
+ROOT = Path(__file__).resolve().parents[1]
+QUIET = {"log": {"video": False, "progress": False}}
+
+# A floor, a body on a slide joint with a position actuator, a hinged arm with a motor.
+XML = """
+<mujoco>
+  <worldbody>
+    <geom name="floor" type="plane" size="5 5 0.1" friction="0.8 0.01 0.001"/>
+    <body name="cart" pos="0 0 0.2">
+      <joint name="slide" type="slide" axis="1 0 0" damping="2"/>
+      <geom type="box" size="0.1 0.1 0.1" mass="2"/>
+      <body name="arm">
+        <joint name="hinge" type="hinge" axis="0 1 0" damping="0.5"/>
+        <geom type="capsule" fromto="0 0 0 0.3 0 0" size="0.03" mass="0.3" friction="1.2 0.02 0.002"/>
+      </body>
+    </body>
+  </worldbody>
+  <actuator>
+    <position joint="slide" kp="30"/>
+    <motor joint="hinge" gear="3"/>
+  </actuator>
+</mujoco>
+"""
+ALL = randomize.RandomizeConfig(
+    friction=(0.5, 1.5), actuator_gain=(0.8, 1.2), body_mass=(0.7, 1.3), joint_damping=(0.25, 4.0)
+)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _tiny_envs():
+    register()
+    yield
+    registry.unregister("test_point")
+    registry.unregister("test_point_unstable")
+
+
+def quiet(_):
+    pass
+
+
+def in_range(x, r):
+    return bool(((x >= r[0] - 1e-6) & (x <= r[1] + 1e-6)).all())
+
+
+# --- domain randomization -----------------------------------------------------------------------
+
+
+def test_randomized_fields_differ_across_envs_and_stay_in_range():
+    mj = mujoco.MjModel.from_xml_string(XML)
+    model = mjx.put_model(mj)
+    n = 16
+    batched, in_axes = randomize.randomizer(ALL)(model, jax.random.split(jax.random.PRNGKey(0), n))
+    assert in_axes.geom_friction == 0 and in_axes.dof_damping == 0 and in_axes.geom_size is None
+
+    # Friction: one factor per env for the whole world, sliding friction only.
+    f = np.asarray(batched.geom_friction)
+    ratio = f[:, :, 0] / mj.geom_friction[:, 0]
+    np.testing.assert_allclose(ratio, ratio[:, :1] * np.ones_like(ratio), rtol=1e-6)
+    assert in_range(ratio, ALL.friction) and np.unique(ratio[:, 0]).size == n
+    np.testing.assert_allclose(f[:, :, 1:], np.broadcast_to(mj.geom_friction[:, 1:], f[:, :, 1:].shape), rtol=1e-6)
+
+    # Actuator gain: per actuator; the position actuator's bias follows its gain (-kp).
+    gain = np.asarray(batched.actuator_gainprm)
+    bias = np.asarray(batched.actuator_biasprm)
+    g = gain[:, :, 0] / mj.actuator_gainprm[:, 0]
+    assert in_range(g, ALL.actuator_gain) and np.unique(g).size == 2 * n
+    np.testing.assert_allclose(bias[:, 0, 1], -gain[:, 0, 0], rtol=1e-6)  # position: bias = -kp q
+    np.testing.assert_array_equal(bias[:, 1], np.zeros_like(bias[:, 1]))  # motor: no bias
+
+    # Mass and inertia scaled together per body; the world body stays massless.
+    m = np.asarray(batched.body_mass)
+    assert (m[:, 0] == 0).all()
+    mass_ratio = m[:, 1:] / mj.body_mass[1:]
+    assert in_range(mass_ratio, ALL.body_mass) and np.unique(mass_ratio).size == 2 * n
+    inertia_ratio = np.asarray(batched.body_inertia)[:, 1:] / mj.body_inertia[1:]
+    np.testing.assert_allclose(inertia_ratio, mass_ratio[..., None] * np.ones(3), rtol=1e-5)
+
+    d = np.asarray(batched.dof_damping) / mj.dof_damping
+    assert in_range(d, ALL.joint_damping) and np.unique(d).size == 2 * n
+
+    # The summary logged at the start of training agrees.
+    s = randomize.summary(model, batched, ALL)
+    assert s["friction"]["min"] == pytest.approx(ratio.min(), rel=1e-5)
+    assert s["body_mass"]["max"] == pytest.approx(mass_ratio.max(), rel=1e-5)
+
+    # Off: nothing is batched.
+    off = randomize.RandomizeConfig(friction=None)
+    assert not off.enabled
+    same, _ = randomize.randomizer(off)(model, jax.random.split(jax.random.PRNGKey(0), n))
+    np.testing.assert_allclose(np.asarray(same.geom_friction), mj.geom_friction, rtol=1e-6)
+
+
+def test_bad_ranges_name_the_key():
+    for bad, match in (([2.0, 1.0], "friction"), ([0.0, 1.0], "friction"), ([1.0], "friction")):
+        with pytest.raises(VnlError, match=match):
+            train_config.build("test_point", "tiny", file_values={"randomize": {"friction": bad}})
+    with pytest.raises(VnlError, match="unknown config key randomize.gravity"):
+        train_config.build("test_point", "tiny", assignments=["randomize.gravity=[1,2]"])
+
+
+def _mujoco_rollout(mj, qpos, qvel, ctrl, steps):
+    d = mujoco.MjData(mj)
+    d.qpos[:], d.qvel[:], d.ctrl[:] = qpos, qvel, ctrl
+    for _ in range(steps):
+        mujoco.mj_step(mj, d)
+    return d.qpos.copy()
+
+
+def test_each_env_steps_with_its_own_parameters():
+    """Every vmapped env moves as MuJoCo C does with that env's damping and gain; with
+    randomization off, as with the model's own values."""
+    env = registry.make("test_point")
+    n = 4
+    cfg = randomize.RandomizeConfig(actuator_gain=(0.5, 1.5), joint_damping=(0.2, 5.0))
+    fn = functools.partial(randomize.randomizer(cfg), rng=jax.random.split(jax.random.PRNGKey(1), n))
+    keys = jax.random.split(jax.random.PRNGKey(2), n)
+    action = jp.full((n, 1), 0.7)
+    for randomized in (True, False):
+        w = wrap_for_training(env, episode_length=40, randomization_fn=fn if randomized else None)
+        s0 = jax.jit(w.reset)(keys)
+        s = jax.jit(w.step)(s0, action)
+        s = jax.jit(w.step)(s, action)
+        qpos = np.asarray(s.data.qpos)
+        for i in range(n):
+            mj = mujoco.MjModel.from_xml_string(POINT_XML)
+            if randomized:
+                mj.dof_damping[:] = np.asarray(w.env.env.model.dof_damping[i])
+                mj.actuator_gainprm[:] = np.asarray(w.env.env.model.actuator_gainprm[i])
+            ref = _mujoco_rollout(mj, np.asarray(s0.data.qpos[i]), np.asarray(s0.data.qvel[i]), 0.7, 2 * env.n_substeps)
+            np.testing.assert_allclose(qpos[i], ref, rtol=1e-4, atol=1e-6)
+        spread = np.ptp(qpos[:, 0] - np.asarray(s0.data.qpos[:, 0]))
+        assert (spread > 1e-3) == randomized  # the displacement differs across envs only when randomized
+
+
+# --- devices: 2 emulated CPU devices in a subprocess ----------------------------------------------
+
+
+TWO_DEVICES = textwrap.dedent(
+    """
+    import json, os, sys
+    sys.path.insert(0, {tests!r})
+    import tiny_env; tiny_env.register()
+    import jax, numpy as np
+    from vnl.cli import main
+    from vnl.train import config as tc
+    from vnl.train.loop import PPOLoop
+    from vnl.envs import registry
+    out = {{"devices": jax.local_device_count()}}
+    base = ["train", "test_point", "--preset", "tiny", "--no-video", "--out"]
+    rand = ["--set", "randomize.joint_damping=[0.2,5.0]", "--set", "ppo.num_timesteps=2048"]
+    out["bad_rc"] = main([*base, {bad!r}, "--set", "ppo.num_minibatches=16", "--set", "ppo.batch_size=1"])
+    out["rc"] = main([*base, {run!r}, *rand])
+    # Each device slices its own envs' parameters out of the batch of all envs.
+    cfg = tc.build("test_point", "tiny", assignments=["randomize.joint_damping=[0.2,5.0]"])
+    loop = PPOLoop(registry.make("test_point"), cfg)
+    inner = loop.env.env.env
+    per_device = cfg.ppo.num_envs // 2
+    local = jax.pmap(lambda _: inner._local_model(per_device).dof_damping, axis_name="i")(np.zeros(2))
+    local = np.asarray(local).reshape(-1, 1)
+    out["local_equals_slices"] = bool(np.array_equal(local, np.asarray(inner.model.dof_damping)))
+    out["distinct"] = int(np.unique(np.asarray(local)).size)
+    print("RESULT" + json.dumps(out))
+    """
+)
+
+
+def test_trains_on_two_devices_and_the_checkpoint_resumes_on_one(tmp_path):
+    script = TWO_DEVICES.format(tests=str(ROOT / "tests"), bad=str(tmp_path / "bad"), run=str(tmp_path / "run"))
+    env = {**__import__("os").environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
+    p = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, cwd=ROOT, env=env, timeout=900)
+    assert p.returncode == 0, p.stdout[-3000:] + p.stderr[-3000:]
+    result = json.loads(p.stdout.split("RESULT")[-1])
+    assert result["devices"] == 2
+    assert result["bad_rc"] == 2 and "multiples of the number of devices (2)" in p.stderr
+    assert result["rc"] == 0
+    assert "on 2 cpu device(s)" in p.stdout and "randomize.joint_damping: factor mean" in p.stdout
+    assert result["local_equals_slices"] and result["distinct"] == 16
+    run = tmp_path / "run"
+    assert set(json.loads((run / "randomization.json").read_text())) == {"joint_damping"}
+    # This process has one device: the 2-device checkpoint loads and training continues.
+    _, params = checkpoint.load(run)
+    assert all(np.isfinite(np.asarray(x)).all() for x in jax.tree.leaves(params))
+    result = ppo.resume(run, assignments=["ppo.num_timesteps=4096"], say=quiet)
+    assert not result.interrupted and result.steps == 4096
+    assert all(np.isfinite(np.asarray(x)).all() for x in jax.tree.leaves(result.params))
+    assert [r["step"] for r in metrics_io.read(run / "metrics.jsonl")] == [0, 2048, 4096]
+
+
+# --- faults ----------------------------------------------------------------------------------------
+
+
+def test_training_on_an_env_that_blows_up_finishes_with_finite_params(tmp_path):
+    """Actions above 0.8 push the point mass with an infinite force: those episodes end, are
+    counted, and nothing non-finite reaches the parameters."""
+    env = registry.make("test_point_unstable")
+    w = wrap_for_training(env, episode_length=40)
+    s = jax.jit(w.reset)(jax.random.split(jax.random.PRNGKey(0), 8))
+    s = jax.jit(w.step)(s, jp.linspace(-1, 1, 8)[:, None])
+    np.testing.assert_array_equal(np.asarray(s.metrics["physics_nan"]), np.linspace(-1, 1, 8) > 0.8)
+    assert np.isfinite(np.asarray(s.data.qpos)).all() and np.isfinite(np.asarray(s.obs)).all()
+
+    cfg = train_config.build("test_point_unstable", "tiny", file_values=QUIET)
+    result = ppo.train(cfg, tmp_path / "run", say=quiet)
+    assert not result.interrupted
+    assert all(np.isfinite(np.asarray(x)).all() for x in jax.tree.leaves(result.params))
+    records = metrics_io.read(tmp_path / "run" / "metrics.jsonl")
+    assert all(np.isfinite(r["eval/episode_reward"]) for r in records)
+    assert "eval/episode_physics_nan" in records[-1]
+
+
+def test_full_disk_fails_before_training(tmp_path, monkeypatch):
+    cfg = train_config.build("test_point", "tiny", file_values=QUIET)
+    usage = ppo.shutil.disk_usage(tmp_path)
+    monkeypatch.setattr(ppo.shutil, "disk_usage", lambda _: usage._replace(free=10 << 20))
+    with pytest.raises(VnlError, match=r"not enough free disk space.*MiB free.*keep_checkpoints"):
+        ppo.train(cfg, tmp_path / "run", say=quiet)
+    assert checkpoint.steps(tmp_path / "run") == []
+
+
+def test_disk_full_while_writing_a_checkpoint_keeps_the_last_good_one(tmp_path, monkeypatch):
+    cfg = train_config.build("test_point", "tiny", file_values=QUIET)
+    real = np.savez
+    calls = []
+
+    def savez(f, **arrays):
+        calls.append(1)
+        if len(calls) == 2:  # the second checkpoint: half written, then the disk is full
+            f.write(b"partial")
+            raise OSError(28, "No space left on device")
+        return real(f, **arrays)
+
+    monkeypatch.setattr(checkpoint.np, "savez", savez)
+    with pytest.raises(VnlError, match=r"step 4,096.*No space left on device.*step 0.*--resume"):
+        ppo.train(cfg, tmp_path / "run", say=quiet)
+    run = tmp_path / "run"
+    assert checkpoint.steps(run) == [0]
+    assert not list((run / "checkpoints").glob(".tmp-*"))  # no half-written checkpoint left
+    checkpoint.load(run)
+    assert [r["step"] for r in metrics_io.read(run / "metrics.jsonl")] == [0]
+
+
+# --- config fuzz -----------------------------------------------------------------------------------
+
+
+def _keys(cls, prefix=""):
+    """Every leaf key of a config dataclass, e.g. `ppo.num_envs`."""
+    import dataclasses
+
+    out = []
+    for f in dataclasses.fields(cls):
+        if dataclasses.is_dataclass(f.default):
+            out += _keys(type(f.default), f"{prefix}{f.name}.")
+        else:
+            out.append(f"{prefix}{f.name}")
+    return out
+
+
+VALUES = [-1, 0, 1, 3, 2.5, -0.5, 1e9, True, "x", "swish", None, [], [1, 2], [0.5, 1.5], [2.0, 1.0], {"a": 1}, "1e3"]
+
+
+def test_config_fuzz_errors_name_the_key():
+    """Random valid/invalid keys and values: each either builds or raises a VnlError naming the
+    offending key; nothing else escapes (no TypeError/ValueError from deep inside)."""
+    keys = [k for k in _keys(train_config.TrainConfig) if k not in ("env", "env_config")]
+    env_keys = [f"env_config.{k}" for k in config_lib.to_dict(registry.env_config("ant_run", {}))]
+    rng = random.Random(0)
+    outcomes = {"ok": 0, "error": 0}
+    for _ in range(400):
+        assignments = {}
+        for _ in range(rng.randint(1, 3)):
+            key = rng.choice(keys + env_keys + ["ppo.nonsense", "bogus", "randomize.friction.lo"])
+            assignments[key] = rng.choice(VALUES)
+        values = {}
+        for key, value in assignments.items():
+            values = config_lib.merge(values, config_lib.parse_assignment(f"{key}={json.dumps(value)}"))
+        try:
+            train_config.build("ant_run", "cpu", file_values=values)
+            outcomes["ok"] += 1
+        except VnlError as e:
+            outcomes["error"] += 1
+            named = [k for k in assignments if k.split(".")[-1] in str(e) or k.split(".")[0] in str(e)]
+            assert named, f"{assignments} -> {e}"
+    assert outcomes["ok"] > 10 and outcomes["error"] > 100, outcomes
