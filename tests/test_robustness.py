@@ -311,3 +311,50 @@ def test_config_fuzz_errors_name_the_key():
             named = [k for k in assignments if k.split(".")[-1] in str(e) or k.split(".")[0] in str(e)]
             assert named, f"{assignments} -> {e}"
     assert outcomes["ok"] > 10 and outcomes["error"] > 100, outcomes
+
+
+# --- physics backends ----------------------------------------------------------------------------
+
+
+def test_backend_and_impl_errors_name_the_fix():
+    with pytest.raises(VnlError, match=r"impl: 'warp' needs NVIDIA Warp.*pip install warp-lang mujoco-warp.*impl: jax"):
+        registry.make("ant_run", impl="warp")
+    with pytest.raises(VnlError, match=r"cannot load the 'ant' model.*brax_ant_run"):
+        registry.make("ant_run", backend="positional")
+    with pytest.raises(VnlError, match=r"cannot load the 'rodent' model"):
+        registry.make("rodent_run", backend="generalized")
+    with pytest.raises(VnlError, match=r"backend.*not one of \['mjx', 'generalized', 'positional', 'spring'\]"):
+        registry.make("brax_ant_run", backend="featherstone")
+    with pytest.raises(VnlError, match=r"randomize: .*backend is 'spring'"):
+        train_config.build(
+            "brax_ant_run", "cpu", assignments=["env_config.backend=spring", "randomize.friction=[0.5,1.5]"]
+        )
+
+
+def test_brax_pipeline_drives_the_task_and_auto_reset():
+    """With Brax's spring pipeline, the task's data follow Brax's state: qpos/qvel are Brax's,
+    the kinematics the rewards read equal MuJoCo's for that qpos, and an auto-reset restores
+    Brax's own state too."""
+    env = registry.make("brax_ant_run", backend="spring", physics_timestep=0.005, n_substeps=10)
+    w = wrap_for_training(env, episode_length=3)
+    s0 = jax.jit(w.reset)(jax.random.split(jax.random.PRNGKey(0), 2))
+    step = jax.jit(w.step)
+    actions = jax.random.uniform(jax.random.PRNGKey(1), (3, 2, env.action_size), minval=-1, maxval=1)
+    s1 = step(s0, actions[0])
+    # (MJX's kinematics renormalizes the root quaternion: equal to float32 rounding)
+    np.testing.assert_allclose(np.asarray(s1.data.qpos), np.asarray(s1.info["pipeline"].q), atol=1e-6)
+    m = env.mj_model
+    for i in range(2):
+        com = []
+        for s in (s0, s1):
+            d = mujoco.MjData(m)
+            d.qpos[:] = np.asarray(s.data.qpos[i])
+            mujoco.mj_forward(m, d)
+            com.append(d.subtree_com[env.root_body_id].copy())
+            np.testing.assert_allclose(np.asarray(s.data.xpos[i]), d.xpos, atol=1e-4)
+        vx = (com[1][0] - com[0][0]) / env.dt
+        assert float(s1.metrics["x_velocity"][i]) == pytest.approx(vx, abs=1e-3)
+        assert abs(vx) > 1e-3  # it moved
+    s3 = step(step(s1, actions[1]), actions[2])  # the episode limit (3 steps) resets both envs
+    np.testing.assert_array_equal(np.asarray(s3.info["pipeline"].q), np.asarray(s0.info["pipeline"].q))
+    np.testing.assert_allclose(np.asarray(s3.data.qpos), np.asarray(s0.data.qpos), atol=1e-6)

@@ -48,10 +48,10 @@ class Env(abc.ABC):
     (`n_substeps` calls of `mjx.step` per control step) with the NaN guard.
     """
 
-    def __init__(self, config: Any, mj_model: mujoco.MjModel, n_substeps: int) -> None:
+    def __init__(self, config: Any, mj_model: mujoco.MjModel, n_substeps: int, impl: str = "jax") -> None:
         self._config = config
         self._mj_model = mj_model
-        self._mjx_model = mjx.put_model(mj_model)
+        self._mjx_model = mjx.put_model(mj_model, impl=impl)
         self._n_substeps = int(n_substeps)
         ctrlrange = mj_model.actuator_ctrlrange.astype("float32")
         limited = mj_model.actuator_ctrllimited.astype(bool)

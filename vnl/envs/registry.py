@@ -52,6 +52,16 @@ _REGISTRY: dict[str, Entry] = {
         run.HUMANOID_RUN,
         "The notebooks' MJX humanoid runs forward on a flat floor.",
     ),
+    "brax_humanoid_run": Entry(
+        run.Run,
+        run.BRAX_HUMANOID_RUN,
+        "Brax's humanoid runs forward; physics selectable: MJX or Brax's generalized/positional/spring.",
+    ),
+    "brax_ant_run": Entry(
+        run.Run,
+        run.BRAX_ANT_RUN,
+        "Brax's ant runs forward; physics selectable: MJX or Brax's generalized/positional/spring.",
+    ),
     "rodent_run": Entry(
         run.Run,
         run.RODENT_RUN,

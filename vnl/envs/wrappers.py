@@ -24,6 +24,8 @@ class AutoResetWrapper(brax_training.Wrapper):
         state = self.env.reset(rng)
         state.info["first_data"] = state.data
         state.info["first_obs"] = state.obs
+        if "pipeline" in state.info:  # a Brax pipeline's own state (vnl.envs.brax_physics)
+            state.info["first_pipeline"] = state.info["pipeline"]
         return state
 
     def step(self, state: State, action: jax.Array) -> State:
@@ -43,6 +45,8 @@ class AutoResetWrapper(brax_training.Wrapper):
 
         data = jax.tree.map(where_done, state.info["first_data"], state.data)
         obs = jax.tree.map(where_done, state.info["first_obs"], state.obs)
+        if "pipeline" in state.info:
+            state.info["pipeline"] = jax.tree.map(where_done, state.info["first_pipeline"], state.info["pipeline"])
         return state.replace(data=data, obs=obs)
 
 

@@ -32,7 +32,7 @@ class WalkerTaskConfig:
     body whose subtree is the animal (forward velocity, height, egocentric frame).
     """
 
-    walker: Literal["ant", "humanoid", "rodent"] = "ant"
+    walker: Literal["ant", "humanoid", "rodent", "brax_ant", "brax_humanoid"] = "ant"
     walker_xml: str = ""
     root_body: str = "torso"
     episode_length: int = 1000  # control steps per episode
@@ -47,8 +47,11 @@ class WalkerTaskConfig:
     contacts: Literal["all", "essential"] = "essential"  # which walker geoms touch the arena
     rigid_tail: bool = True  # rodent: tail joints removed (faster MJX compile), see walkers.rodent
     observation: Literal["state", "proprioception"] = "proprioception"
+    impl: Literal["jax", "warp"] = "jax"  # MJX implementation; warp needs an NVIDIA GPU (see README)
 
     def validate(self) -> None:
+        if self.impl == "warp":
+            check_warp_available()
         for key in ("episode_length", "n_substeps", "iterations", "ls_iterations"):
             if getattr(self, key) < 1:
                 raise VnlError(f"{key} must be >= 1, got {getattr(self, key)}")
@@ -66,6 +69,25 @@ class WalkerTaskConfig:
             raise VnlError("root_body must name a body of the walker, e.g. torso")
 
 
+def check_warp_available() -> None:
+    """Raises `VnlError` (with the fix) unless MJX's Warp implementation can run here."""
+    import importlib.util
+
+    import jax
+
+    missing = [m for m in ("warp", "mujoco_warp") if importlib.util.find_spec(m) is None]
+    if missing:
+        raise VnlError(
+            "impl: 'warp' needs NVIDIA Warp and MuJoCo Warp (missing: " + ", ".join(missing) + "); install them "
+            "with `pip install warp-lang mujoco-warp` on a machine with an NVIDIA GPU, or use impl: jax"
+        )
+    if jax.default_backend() != "gpu":
+        raise VnlError(
+            f"impl: 'warp' runs on NVIDIA GPUs only, and JAX's backend here is {jax.default_backend()!r}; "
+            "install JAX's CUDA build (see README) or use impl: jax"
+        )
+
+
 def build_walker(config: WalkerTaskConfig) -> Walker:
     """The walker named by `config` (`walker_xml` wins over `walker`)."""
     from vnl.walkers import ant, from_file, humanoid, rodent
@@ -74,6 +96,10 @@ def build_walker(config: WalkerTaskConfig) -> Walker:
         return from_file.build(config.walker_xml, config.root_body, self_collision=config.self_collision)
     if config.walker == "ant":
         return ant.build(self_collision=config.self_collision, contacts=config.contacts)
+    if config.walker in ("brax_ant", "brax_humanoid"):
+        from vnl.walkers import brax_models
+
+        return brax_models.build(config.walker.removeprefix("brax_"))
     if config.walker == "rodent":
         return rodent.build(
             self_collision=config.self_collision, contacts=config.contacts, rigid_tail=config.rigid_tail
@@ -199,7 +225,7 @@ class WalkerTask(Env):
     ) -> None:
         set_physics_options(model, config)
         try:
-            super().__init__(config, model, config.n_substeps)
+            super().__init__(config, model, config.n_substeps, impl=config.impl)
         except NotImplementedError as e:
             raise VnlError(f"MJX cannot simulate this model: {e}") from None
         self._walker = walker

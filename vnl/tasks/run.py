@@ -44,9 +44,20 @@ class RunConfig(WalkerTaskConfig):
     healthy_min_upright: float = 0.0  # cos(max tilt); -1 disables the check
     terminate_when_unhealthy: bool = True
     floor_size: float = 50.0  # rendered half-extent of the floor
+    # Physics: MJX (default) or one of Brax's pipelines (ant and humanoid; see vnl.envs.brax_physics).
+    backend: Literal["mjx", "generalized", "positional", "spring"] = "mjx"
 
     def validate(self) -> None:
         super().validate()
+        if self.backend != "mjx":
+            if self.walker_xml or self.walker not in ("brax_ant", "brax_humanoid"):
+                raise VnlError(
+                    f"backend {self.backend!r} (a Brax pipeline) cannot load the {self.walker_xml or self.walker!r} "
+                    "model; it runs Brax's own models: use the envs brax_ant_run / brax_humanoid_run (or walker: "
+                    "brax_ant / brax_humanoid), or backend: mjx"
+                )
+            if self.impl != "jax":
+                raise VnlError("impl applies to backend: mjx only; use impl: jax with a Brax backend")
         lo, hi = self.healthy_z_range
         if not lo < hi:
             raise VnlError(f"healthy_z_range must be (low, high) with low < high, got {(lo, hi)}")
@@ -82,6 +93,27 @@ HUMANOID_RUN = RunConfig(
     reset_noise_scale=0.01,
 )
 """`humanoid_run` defaults: the seed notebooks' MJX humanoid (DESIGN.md §5)."""
+
+BRAX_HUMANOID_RUN = dataclasses.replace(HUMANOID_RUN, walker="brax_humanoid")
+"""`brax_humanoid_run`: Brax's humanoid with the same task; runs on MJX or a Brax pipeline (`backend`)."""
+
+BRAX_ANT_RUN = RunConfig(
+    walker="brax_ant",
+    physics_timestep=0.01,
+    n_substeps=5,
+    iterations=4,  # ant.xml's own; with 1, MJX's ant bounces up to 1.4 m within 2 s at zero action
+    ls_iterations=15,  # ant.xml's solver_maxls
+    ctrl_cost_weight=0.5,
+    healthy_z_range=(0.2, 1.0),
+    healthy_min_upright=-1.0,
+)
+"""`brax_ant_run`: Brax's ant with Brax's `ant` env rewards (forward + 1 healthy − 0.5|a|²,
+healthy while the torso is 0.2-1 m high), 50 ms control steps; MJX or a Brax pipeline (`backend`).
+
+Brax's own envs step the positional and spring pipelines with smaller physics steps (ant: 5 ms ×
+10, humanoid: 1.5 ms × 10, the control step unchanged); set `physics_timestep`/`n_substeps` to
+match (README, physics backends).
+"""
 
 RODENT_RUN = RunConfig(
     walker="rodent",
@@ -126,6 +158,11 @@ class Run(WalkerTask):
         # The free joint's x/y are excluded from the state observation (translation invariance).
         self._obs_qpos_start = 2
         self._spawn_z = None if walker.standalone else spawn_height(model)
+        self._brax = None
+        if config.backend != "mjx":
+            from vnl.envs.brax_physics import BraxPhysics
+
+            self._brax = BraxPhysics(model, config.backend)
 
     def reset(self, rng: jax.Array) -> State:
         cfg: RunConfig = self._config
@@ -151,13 +188,31 @@ class Run(WalkerTask):
             "y_velocity": zero,
             "physics_nan": zero,
         }
-        return State(data, self._obs(data), zero, zero, metrics, {"rng": rng})
+        info = {"rng": rng}
+        if self._brax is not None:
+            info["pipeline"] = self._brax.init(qpos, qvel)
+        return State(data, self._obs(data), zero, zero, metrics, info)
+
+    def _advance(self, state: State, action: jax.Array) -> tuple[mjx.Data, jax.Array, dict]:
+        """One control step of the configured physics: (data, blew_up, info)."""
+        if self._brax is None:
+            data, blew_up = self.physics_step(state.data, action)
+            return data, blew_up, state.info
+        pipeline, blew_up = self._brax.step(state.info["pipeline"], action, self._n_substeps)
+        data = state.data.replace(
+            qpos=pipeline.q,
+            qvel=pipeline.qd,
+            ctrl=action,
+            qfrc_actuator=self._brax.actuator_force(pipeline, action),
+            time=state.data.time + self.dt * (1.0 - blew_up),
+        )
+        return self.sync_kinematics(data), blew_up, {**state.info, "pipeline": pipeline}
 
     def step(self, state: State, action: jax.Array) -> State:
         cfg: RunConfig = self._config
         action = self.sanitize_action(action)
         data0 = state.data
-        data, blew_up = self.physics_step(data0, action)
+        data, blew_up, info = self._advance(state, action)
 
         com_before = data0.subtree_com[self._root]
         com_after = data.subtree_com[self._root]
@@ -185,7 +240,11 @@ class Run(WalkerTask):
             "y_velocity": velocity[1] * ok,
             "physics_nan": blew_up,
         }
-        return state.replace(data=data, obs=self._obs(data), reward=reward, done=done, metrics=metrics)
+        return state.replace(data=data, obs=self._obs(data), reward=reward, done=done, metrics=metrics, info=info)
+
+    @property
+    def backend(self) -> str:
+        return self._config.backend
 
     def _is_healthy(self, data: mjx.Data) -> jax.Array:
         cfg: RunConfig = self._config
@@ -200,7 +259,7 @@ class Run(WalkerTask):
             return self.proprioception_layout()
         m = self._mj_model
         layout = [("qpos[2:]", m.nq - 2), ("qvel", m.nv)]
-        if self._walker.name == "humanoid":
+        if self._walker.name in ("humanoid", "brax_humanoid"):
             layout += [("cinert[1:]", (m.nbody - 1) * 10), ("cvel[1:]", (m.nbody - 1) * 6), ("qfrc_actuator", m.nv)]
         return layout
 
@@ -208,7 +267,7 @@ class Run(WalkerTask):
         if self._config.observation == "proprioception":
             return self.proprioception(data)
         parts = [data.qpos[self._obs_qpos_start :], data.qvel]
-        if self._walker.name == "humanoid":
+        if self._walker.name in ("humanoid", "brax_humanoid"):
             parts += [
                 data._impl.cinert[1:].ravel(),  # MJX keeps cinert in its impl data
                 data.cvel[1:].ravel(),

@@ -147,7 +147,12 @@ class TrainConfig:
     def validate(self) -> None:
         if self.preset not in PRESETS:
             raise VnlError(f"unknown preset {self.preset!r}; valid presets are: {', '.join(PRESETS)}")
-        registry.env_config(self.env, self.env_config)  # raises on unknown env or bad overrides
+        env_config = registry.env_config(self.env, self.env_config)  # raises on unknown env or bad overrides
+        if self.randomize.enabled and getattr(env_config, "backend", "mjx") != "mjx":
+            raise VnlError(
+                f"randomize: domain randomization changes MJX's model only; env_config.backend is "
+                f"{env_config.backend!r}. Use backend: mjx or turn randomize off"
+            )
         if self.seed < 0:
             raise VnlError(f"seed must be >= 0, got {self.seed}")
 
