@@ -15,7 +15,6 @@ import jax
 import numpy as np
 import pytest
 import yaml
-from tiny_env import register
 
 from vnl import analysis, record
 from vnl.cli import main
@@ -28,7 +27,7 @@ from vnl.train import config as train_config
 from vnl.train import ppo
 from vnl.train.loop import PPOLoop
 
-pytestmark = pytest.mark.xdist_group("research")
+pytestmark = [pytest.mark.xdist_group("research"), pytest.mark.usefixtures("point_envs")]
 
 ROOT = Path(__file__).resolve().parents[1]
 # Tiny preset: 16 envs × 4 minibatches × 8 steps = 512 env steps per training step.
@@ -56,13 +55,6 @@ def leaves(tree):
 
 def untimed(records):
     return [{k: v for k, v in r.items() if k not in TIMING and not k.endswith("_time")} for r in records]
-
-
-@pytest.fixture(scope="module", autouse=True)
-def point_env():
-    register()
-    yield
-    registry.unregister("test_point")
 
 
 @pytest.fixture(scope="module")

@@ -2,6 +2,7 @@
 
 import functools
 import json
+import os
 import random
 import subprocess
 import sys
@@ -15,7 +16,6 @@ import numpy as np
 import pytest
 from mujoco import mjx
 from tiny_env import XML as POINT_XML
-from tiny_env import register
 
 from vnl import config as config_lib
 from vnl.envs import randomize, registry
@@ -26,7 +26,7 @@ from vnl.io import metrics as metrics_io
 from vnl.train import config as train_config
 from vnl.train import ppo
 
-pytestmark = pytest.mark.xdist_group("robustness")
+pytestmark = [pytest.mark.xdist_group("robustness"), pytest.mark.usefixtures("point_envs")]
 
 ROOT = Path(__file__).resolve().parents[1]
 QUIET = {"log": {"video": False, "progress": False}}
@@ -54,14 +54,6 @@ XML = """
 ALL = randomize.RandomizeConfig(
     friction=(0.5, 1.5), actuator_gain=(0.8, 1.2), body_mass=(0.7, 1.3), joint_damping=(0.25, 4.0)
 )
-
-
-@pytest.fixture(scope="module", autouse=True)
-def _tiny_envs():
-    register()
-    yield
-    registry.unregister("test_point")
-    registry.unregister("test_point_unstable")
 
 
 def quiet(_):
@@ -196,7 +188,7 @@ TWO_DEVICES = textwrap.dedent(
 
 def test_trains_on_two_devices_and_the_checkpoint_resumes_on_one(tmp_path):
     script = TWO_DEVICES.format(tests=str(ROOT / "tests"), bad=str(tmp_path / "bad"), run=str(tmp_path / "run"))
-    env = {**__import__("os").environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
+    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
     p = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, cwd=ROOT, env=env, timeout=900)
     assert p.returncode == 0, p.stdout[-3000:] + p.stderr[-3000:]
     result = json.loads(p.stdout.split("RESULT")[-1])

@@ -6,10 +6,8 @@ import shutil
 import jax
 import numpy as np
 import pytest
-from tiny_env import register
 
 import vnl
-from vnl.envs import registry
 from vnl.errors import VnlError
 from vnl.io import checkpoint
 from vnl.io import metrics as metrics_io
@@ -17,7 +15,7 @@ from vnl.policy import load_run, make_policy_fn
 from vnl.train import config as train_config
 from vnl.train import ppo
 
-pytestmark = pytest.mark.xdist_group("train")
+pytestmark = [pytest.mark.xdist_group("train"), pytest.mark.usefixtures("point_envs")]
 
 SETTINGS = {
     "ppo": {
@@ -38,13 +36,6 @@ SETTINGS = {
     "network": {"policy_hidden_layer_sizes": [32, 32, 32, 32], "value_hidden_layer_sizes": [256, 256, 256, 256, 256]},
     "log": {"video": False, "progress": False},
 }
-
-
-@pytest.fixture(scope="module", autouse=True)
-def point_env():
-    register()
-    yield
-    registry.unregister("test_point")
 
 
 @pytest.fixture(scope="module")

@@ -61,3 +61,8 @@ def register() -> None:
     registry.register(
         "test_point_unstable", PointMass, PointConfig(blow_up_above=0.8), "test-only point mass that blows up"
     )
+
+
+def unregister() -> None:
+    registry.unregister("test_point")
+    registry.unregister("test_point_unstable")
