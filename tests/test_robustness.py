@@ -208,6 +208,95 @@ def test_trains_on_two_devices_and_the_checkpoint_resumes_on_one(tmp_path):
     assert [r["step"] for r in metrics_io.read(run / "metrics.jsonl")] == [0, 2048, 4096]
 
 
+TWO_PROCESSES = textwrap.dedent(
+    """
+    import hashlib, json, sys
+    sys.path.insert(0, {tests!r})
+    import tiny_env; tiny_env.register()
+    import jax, numpy as np
+    from vnl.cli import main
+    from vnl.train import ppo
+    out = {{}}
+    train = ppo.train
+
+    def spy(*args, **kwargs):  # the final parameters this process holds
+        result = train(*args, **kwargs)
+        leaves = [np.asarray(x) for x in jax.tree.leaves(result.params)]
+        out["params"] = hashlib.sha1(b"".join(x.tobytes() for x in leaves)).hexdigest()
+        out["finite"] = all(bool(np.isfinite(x).all()) for x in leaves)
+        return result
+
+    ppo.train = spy
+    out["rc"] = main([
+        "train", "test_point", "--preset", "tiny", "--no-video", "--out", {run!r},
+        "--set", "randomize.joint_damping=[0.2,5.0]", "--set", "ppo.num_timesteps=2048",
+        "--coordinator", "127.0.0.1:{port}", "--num-processes", "2", "--process-id", sys.argv[1],
+    ])
+    out["processes"], out["devices"] = jax.process_count(), jax.device_count()
+    print("RESULT" + json.dumps(out), flush=True)
+    """
+)
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_trains_on_two_processes_and_the_checkpoint_resumes_on_one(tmp_path):
+    """Multi-host on one machine: 2 processes (1 CPU device each) joined by jax.distributed."""
+    run = tmp_path / "run"
+    script = TWO_PROCESSES.format(tests=str(ROOT / "tests"), run=str(run), port=_free_port())
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-c", script, str(i)],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            cwd=ROOT,
+            env=env,
+        )
+        for i in range(2)
+    ]
+    try:
+        outs = [p.communicate(timeout=600) for p in procs]
+    finally:
+        for p in procs:
+            p.kill()
+    for p, (stdout, stderr) in zip(procs, outs, strict=True):
+        assert p.returncode == 0, stdout[-3000:] + stderr[-3000:]
+    results = [json.loads(stdout.split("RESULT")[-1]) for stdout, _ in outs]
+    assert [r["rc"] for r in results] == [0, 0]
+    assert all(r["processes"] == 2 and r["devices"] == 2 and r["finite"] for r in results)
+    assert results[0]["params"] == results[1]["params"]  # gradients averaged over both processes
+    lead, other = outs[0][0], outs[1][0]
+    assert "on 1 cpu device(s) on each of 2 processes" in lead and "[vnl] step" in lead
+    assert "[vnl]" not in other  # only process 0 reports and writes
+    # The checkpoint holds both processes' envs, as a single-process run would.
+    _, arrays, _ = checkpoint.load_train_state(run)
+    assert arrays[".env.data.qpos"].shape[0] == 16
+    assert len(np.unique(arrays[".env.data.qpos"][:, 0])) == 16
+    assert [r["step"] for r in metrics_io.read(run / "metrics.jsonl")] == [0, 2048]
+    result = ppo.resume(run, assignments=["ppo.num_timesteps=4096"], say=quiet)
+    assert not result.interrupted and result.steps == 4096
+    assert all(np.isfinite(np.asarray(x)).all() for x in jax.tree.leaves(result.params))
+
+
+def test_multi_process_flags_are_checked_before_joining():
+    from vnl.train import distributed
+
+    with pytest.raises(VnlError, match="needs all of --coordinator"):
+        distributed.initialize(coordinator="127.0.0.1:1234")
+    with pytest.raises(VnlError, match="HOST:PORT"):
+        distributed.initialize("localhost", 2, 0)
+    with pytest.raises(VnlError, match=r"--process-id must be in 0..1"):
+        distributed.initialize("127.0.0.1:1234", 2, 2)
+
+
 # --- faults ----------------------------------------------------------------------------------------
 
 

@@ -95,7 +95,12 @@ def cmd_train(args: argparse.Namespace, gl: str | None) -> int:
     from vnl import config as config_lib
     from vnl.errors import VnlError
     from vnl.train import config as train_config
-    from vnl.train import ppo
+    from vnl.train import distributed, ppo
+
+    if args.distributed or args.coordinator or args.num_processes is not None or args.process_id is not None:
+        distributed.initialize(args.coordinator, args.num_processes, args.process_id)
+    lead = distributed.is_lead()
+    say = _say if lead else (lambda _: None)  # process 0 reports for all
 
     flags: dict[str, Any] = {}
     if args.steps is not None:
@@ -117,7 +122,7 @@ def cmd_train(args: argparse.Namespace, gl: str | None) -> int:
         from vnl.policy import read_config
 
         config = ppo.resume_config(read_config(out), args.set, flags)
-        result = ppo.resume(out, args.from_step, args.set, flags, say=_say, finish=finish)
+        result = ppo.resume(out, args.from_step, args.set, flags, say=say, finish=finish)
     else:
         if args.from_step is not None:
             raise VnlError("--from-step needs --resume RUN_DIR")
@@ -131,10 +136,13 @@ def cmd_train(args: argparse.Namespace, gl: str | None) -> int:
             from vnl.io import video
 
             video.resolve_camera(registry.make(config.env, **config.env_config).mj_model, config.log.video_camera)
+        if not args.out and distributed.process_count() > 1:
+            raise VnlError("a multi-process run needs --out DIR, a directory every host can read (for --resume)")
         out = Path(args.out) if args.out else Path("runs") / f"{config.env}-{time.strftime('%Y%m%d-%H%M%S')}"
-        result = ppo.train(config, out, say=_say, finish=finish)
-    _summarize_run(out, config, result.wall_time)
-    _say(f"[vnl] run directory: {out}")
+        result = ppo.train(config, out, say=say, finish=finish)
+    if lead:
+        _summarize_run(out, config, result.wall_time)
+        _say(f"[vnl] run directory: {out}")
     return 130 if result.interrupted else 0
 
 
@@ -308,6 +316,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--steps", type=int, help="total environment steps (ppo.num_timesteps)")
     p.add_argument("--num-envs", type=int, help="parallel environments (ppo.num_envs)")
     p.add_argument("--no-video", action="store_true", help="skip the final-policy video")
+    g = p.add_argument_group("multi-host (one process per host; process 0 writes the run directory)")
+    g.add_argument("--distributed", action="store_true", help="join a multi-process run detected from SLURM/MPI")
+    g.add_argument("--coordinator", metavar="HOST:PORT", help="manual launch: process 0's address")
+    g.add_argument("--num-processes", type=int, metavar="N", help="manual launch: number of processes")
+    g.add_argument("--process-id", type=int, metavar="I", help="manual launch: this process's index (0..N-1)")
 
     p = sub.add_parser("eval", help="evaluate a trained run")
     p.add_argument("run_dir")

@@ -51,7 +51,10 @@ class Env(abc.ABC):
     def __init__(self, config: Any, mj_model: mujoco.MjModel, n_substeps: int, impl: str = "jax") -> None:
         self._config = config
         self._mj_model = mj_model
-        self._mjx_model = mjx.put_model(mj_model, impl=impl)
+        # MJX places the model on `jax.devices()[0]`, which in a multi-process run belongs to
+        # process 0; this process's default device is its first local one.
+        device = jax.local_devices()[0] if impl == "jax" else None
+        self._mjx_model = mjx.put_model(mj_model, impl=impl, device=device)
         self._n_substeps = int(n_substeps)
         ctrlrange = mj_model.actuator_ctrlrange.astype("float32")
         limited = mj_model.actuator_ctrllimited.astype(bool)

@@ -60,7 +60,6 @@ def save(
     """
     import jax
     from flax.training import orbax_utils
-    from orbax import checkpoint as ocp
 
     root = checkpoint_dir(run_dir)
     root.mkdir(parents=True, exist_ok=True)
@@ -69,8 +68,9 @@ def save(
     shutil.rmtree(tmp, ignore_errors=True)
     try:
         tmp.mkdir()
-        params = jax.device_get(params)
-        checkpointer = ocp.PyTreeCheckpointer()
+        # numpy leaves: orbax refuses host-local jax.Arrays in a multi-process run.
+        params = _numpy_tree(jax.device_get(params))
+        checkpointer = _checkpointer()
         checkpointer.save((tmp / PARAMS).absolute(), params, save_args=orbax_utils.save_args_from_target(params))
         if train_state is not None:
             with open(tmp / TRAIN_STATE, "wb") as f:
@@ -91,6 +91,32 @@ def save(
         for old in steps(run_dir)[:-keep]:
             shutil.rmtree(step_dir(run_dir, old), ignore_errors=True)
     return final
+
+
+def _numpy_tree(tree: Any) -> Any:
+    """`tree` with numpy leaves. Brax's `UInt64` (the normalizer's count) turns its fields back
+    into jax arrays when rebuilt, so it becomes the dict of fields orbax would write for it."""
+    import jax
+    from brax.training import types as brax_types
+
+    def convert(x: Any) -> Any:
+        if isinstance(x, brax_types.UInt64):
+            return {"hi": np.asarray(x.hi), "lo": np.asarray(x.lo)}
+        return np.asarray(x)
+
+    return jax.tree.map(convert, tree, is_leaf=lambda x: isinstance(x, brax_types.UInt64))
+
+
+def _checkpointer() -> Any:
+    """Orbax's PyTree checkpointer for this process alone: in a multi-process run only process 0
+    writes (the training state is gathered first), so orbax must not wait for the others."""
+    import jax
+    from orbax import checkpoint as ocp
+
+    me = jax.process_index()
+    only_me = ocp.options.MultiprocessingOptions(primary_host=me, active_processes={me})
+    handler = ocp.PyTreeCheckpointHandler(multiprocessing_options=only_me)
+    return ocp.Checkpointer(handler, multiprocessing_options=only_me)
 
 
 def steps(run_dir: str | Path) -> list[int]:

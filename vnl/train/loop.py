@@ -16,6 +16,12 @@ the whole state as a `LoopState`:
 
 `to_arrays` / `from_arrays` turn a `LoopState` into named host arrays and back; the env arrays
 are stored flat over environments, so a checkpoint resumes on a different number of devices.
+
+Several processes (`vnl.train.distributed`): the pmap axis spans every process's devices, so the
+averaged gradients and parameters are global; each process steps `num_envs / num_processes`
+environments. `key` and `eval_key` are the same on every process (each process folds its index
+into the epoch's key), and `to_arrays` gathers the environments of all processes, so a
+checkpoint has the layout of a single-process run.
 """
 
 from __future__ import annotations
@@ -88,11 +94,14 @@ class PPOLoop:
         self.devices = jax.local_devices()
         self.n_devices = len(self.devices)
         self.process_count = jax.process_count()
-        if p.num_envs % (self.n_devices * self.process_count):
+        self.process_index = jax.process_index()
+        n = self.n_devices * self.process_count
+        if p.num_envs % n or p.batch_size % n:
             raise VnlError(
-                f"ppo.num_envs ({p.num_envs}) must be a multiple of the number of devices "
-                f"({self.n_devices * self.process_count})"
+                f"ppo.num_envs ({p.num_envs}) and ppo.batch_size ({p.batch_size}) must be multiples of the "
+                f"number of devices ({n})"
             )
+        self.local_envs = p.num_envs // self.process_count
         self.episode_length = config.episode_length()
         train_models, eval_models = self._randomized_models(env)
         self.env = wrap_for_training(
@@ -143,8 +152,9 @@ class PPOLoop:
         """Brax-style `randomization_fn(model)`s for the training and the evaluation envs (None
         when `config.randomize` is off); sets `self.randomization` (mean/min/max of each factor).
 
-        The draws depend only on the seed (and the host's index), so a resumed run gets the same
-        worlds back.
+        The draws depend only on the seed and the env's index, so a resumed run gets the same
+        worlds back. Every process holds the parameters of all `num_envs` envs; each device takes
+        its slice by its global index (`RandomizedVmapWrapper`).
         """
         from vnl.envs import randomize
 
@@ -154,10 +164,9 @@ class PPOLoop:
             return None, None
         fn = randomize.randomizer(cfg)
         key = jax.random.fold_in(jax.random.PRNGKey(self.config.seed), 0x52414E44)  # "RAND"
-        key = jax.random.fold_in(key, jax.process_index())
+        key = jax.random.fold_in(key, 0)
         key_train, key_eval = jax.random.split(key)
-        n_train = self.config.ppo.num_envs // self.process_count
-        train = fn(env.mjx_model, jax.random.split(key_train, n_train))
+        train = fn(env.mjx_model, jax.random.split(key_train, self.config.ppo.num_envs))
         evaluation = fn(env.mjx_model, jax.random.split(key_eval, self.config.ppo.num_eval_envs))
         self.randomization = randomize.summary(env.mjx_model, train[0], cfg)
         return (lambda _: train), (lambda _: evaluation)
@@ -166,13 +175,14 @@ class PPOLoop:
 
     def init(self, seed: int) -> LoopState:
         """The state before training, with Brax's key splits for `seed`."""
-        p = self.config.ppo
         key = jax.random.PRNGKey(seed)
         global_key, local_key = jax.random.split(key)
-        local_key = jax.random.fold_in(local_key, jax.process_index())
+        local_key = jax.random.fold_in(local_key, 0)  # Brax's key for process 0
         local_key, key_env, eval_key = jax.random.split(local_key, 3)
         key_policy, key_value = jax.random.split(global_key)
-        key_envs = jax.random.split(key_env, p.num_envs // self.process_count)
+        if self.process_count > 1:
+            key_env = jax.random.fold_in(key_env, self.process_index)
+        key_envs = jax.random.split(key_env, self.local_envs)
         key_envs = jp.reshape(key_envs, (self.n_devices, -1) + key_envs.shape[1:])
         env_state = self._reset(key_envs)
         params = ppo_losses.PPONetworkParams(
@@ -189,11 +199,18 @@ class PPOLoop:
         training = jax.device_put_replicated(training, self.devices)
         return LoopState(training=training, env=env_state, key=local_key, eval_key=eval_key)
 
-    def to_arrays(self, state: LoopState) -> dict[str, np.ndarray]:
-        """Host arrays named by their path in the state; env arrays flat over environments."""
+    def to_arrays(self, state: LoopState, gather: bool = True) -> dict[str, np.ndarray]:
+        """Host arrays named by their path in the state; env arrays flat over environments,
+        (num_envs, ...) — with several processes, gathered from all of them (a collective: every
+        process must call it) unless `gather` is False ((num_envs / processes, ...))."""
+        env = jax.tree.map(lambda x: np.asarray(x).reshape((x.shape[0] * x.shape[1],) + x.shape[2:]), state.env)
+        if gather and self.process_count > 1:
+            from jax.experimental import multihost_utils
+
+            env = jax.tree.map(np.asarray, multihost_utils.process_allgather(env, tiled=True))
         host = LoopState(
             training=jax.device_get(_unreplicate(state.training)),
-            env=jax.tree.map(lambda x: np.asarray(x).reshape((x.shape[0] * x.shape[1],) + x.shape[2:]), state.env),
+            env=env,
             key=np.asarray(state.key),
             eval_key=np.asarray(state.eval_key),
         )
@@ -203,7 +220,12 @@ class PPOLoop:
     def from_arrays(self, arrays: dict[str, np.ndarray]) -> LoopState:
         """The inverse of `to_arrays`; raises `VnlError` if the arrays belong to another setup."""
         template = self.init(0)
-        flat = self.to_arrays(template)
+        flat = self.to_arrays(template, gather=False)
+        if self.process_count > 1:  # the saved env arrays hold every process's envs
+            flat = {
+                k: np.broadcast_to(v[:1], (self.config.ppo.num_envs,) + v.shape[1:]) if k.startswith(".env") else v
+                for k, v in flat.items()
+            }
         missing = sorted(set(flat) - set(arrays))
         extra = sorted(set(arrays) - set(flat))
         bad = [k for k in flat if k in arrays and (arrays[k].shape, arrays[k].dtype) != (flat[k].shape, flat[k].dtype)]
@@ -226,8 +248,11 @@ class PPOLoop:
         paths, treedef = jax.tree_util.tree_flatten_with_path(host)
         leaves = [arrays[jax.tree_util.keystr(path)] for path, _ in paths]
         restored = jax.tree_util.tree_unflatten(treedef, leaves)
-        per_device = self.config.ppo.num_envs // self.process_count // self.n_devices
-        env = jax.tree.map(lambda x: jp.asarray(x.reshape((self.n_devices, per_device) + x.shape[1:])), restored.env)
+        per_device = self.local_envs // self.n_devices
+        mine = slice(self.process_index * self.local_envs, (self.process_index + 1) * self.local_envs)
+        env = jax.tree.map(
+            lambda x: jp.asarray(x[mine].reshape((self.n_devices, per_device) + x.shape[1:])), restored.env
+        )
         shards = [jax.tree.map(lambda x, i=i: x[i], env) for i in range(self.n_devices)]
         env = jax.device_put_sharded(shards, self.devices)
         return LoopState(
@@ -251,6 +276,8 @@ class PPOLoop:
         """One epoch of `training_steps_per_epoch` training steps; returns Brax's training metrics."""
         t = time.time()
         epoch_key, key = jax.random.split(state.key)
+        if self.process_count > 1:
+            epoch_key = jax.random.fold_in(epoch_key, self.process_index)
         epoch_keys = jax.random.split(epoch_key, self.n_devices)
         training, env = _strip_weak_type((state.training, state.env))
         training, env, metrics = self._epoch(training, env, epoch_keys)

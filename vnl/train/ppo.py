@@ -236,9 +236,11 @@ def train(
     runs after a completed run, while the trackers are open; a path it returns (a video) is
     uploaded to wandb when enabled.
     """
+    from vnl.train import distributed
+
     run_dir = Path(run_dir)
     _check_devices(config)
-    prepare_run_dir(run_dir, config)
+    distributed.on_lead(lambda: prepare_run_dir(run_dir, config))
     return _run(config, run_dir, None, say, finish)
 
 
@@ -260,10 +262,12 @@ def resume(
 
     run_dir = Path(run_dir)
     saved = read_config(run_dir)
+    from vnl.train import distributed
+
     config = resume_config(saved, assignments, flags)
     _check_devices(config)
     step, arrays, meta = checkpoint.load_train_state(run_dir, from_step)
-    if config != saved:
+    if config != saved and distributed.is_lead():
         config_lib.dump_yaml(config, str(run_dir / "config.yaml"))
     return _run(config, run_dir, (step, arrays, meta), say, finish)
 
@@ -301,10 +305,14 @@ def check_disk_space(run_dir: Path, config: TrainConfig, env: Any) -> None:
         )
 
 
+def _silent(_: str) -> None:
+    pass
+
+
 def _check_devices(config: TrainConfig) -> None:
     import jax
 
-    devices = jax.local_device_count()
+    devices = jax.device_count()  # over all processes
     if config.ppo.num_envs % devices or config.ppo.batch_size % devices:
         raise VnlError(
             f"ppo.num_envs ({config.ppo.num_envs}) and ppo.batch_size ({config.ppo.batch_size}) "
@@ -323,11 +331,15 @@ def _run(
 
     from vnl.envs import registry
     from vnl.io import tracking
+    from vnl.train import distributed
     from vnl.train.loop import PPOLoop
 
+    lead = distributed.is_lead()  # only process 0 evaluates, reports and writes
+    if not lead:
+        say = _silent
     p = config.ppo
     env = registry.entry(config.env).factory(config.resolved_env_config())
-    check_disk_space(run_dir, config, env)
+    distributed.on_lead(lambda: check_disk_space(run_dir, config, env))
     epoch_steps = restored[2]["training_steps_per_epoch"] if restored else None
     loop = PPOLoop(env, config, training_steps_per_epoch=epoch_steps)
     stop = threading.Event()
@@ -335,15 +347,20 @@ def _run(
     wall_offset = 0.0
     if restored:
         step0, arrays, meta = restored
-        _set_aside_later_checkpoints(run_dir, step0, say)
-        wall_offset = _truncate_metrics(run_dir, step0, meta.get("record"), say)
+        if lead:
+            _set_aside_later_checkpoints(run_dir, step0, say)
+            wall_offset = _truncate_metrics(run_dir, step0, meta.get("record"), say)
         loop.training_walltime = float(meta.get("training_walltime", 0.0))
     wandb_id = restored[2].get("wandb_id") if restored else None
-    tracker = tracking.Tracker(run_dir, config.log, config_lib.to_dict(config), say, wandb_id=wandb_id)
+    tracker = None
+    if lead:
+        tracker = tracking.Tracker(run_dir, config.log, config_lib.to_dict(config), say, wandb_id=wandb_id)
     t_start = time.time()
     n_evals = [0]
 
     def log(record: dict[str, Any]) -> None:
+        if tracker is None:
+            return
         step = record["step"]
         tracker.write(record)
         records.append(record)
@@ -365,15 +382,19 @@ def _run(
         n_evals[0] += 1
         if not (force or n % config.log.checkpoint_every == 0 or step >= p.num_timesteps):
             return
+        arrays = loop.to_arrays(state)  # every process: gathers the envs of all of them
+        distributed.on_lead(lambda: write(step, state, record, arrays))
+
+    def write(step: int, state: Any, record: dict[str, Any], arrays: dict[str, Any]) -> None:
         meta = {
             "training_steps_per_epoch": loop.training_steps_per_epoch,
             "env_steps_per_epoch": loop.env_steps_per_epoch,
             "training_walltime": loop.training_walltime,
             "record": record,
-            "wandb_id": tracker.wandb.id if tracker.wandb else None,
+            "wandb_id": tracker.wandb.id if tracker and tracker.wandb else None,
         }
         try:
-            checkpoint.save(run_dir, step, loop.params(state), config.log.keep_checkpoints, loop.to_arrays(state), meta)
+            checkpoint.save(run_dir, step, loop.params(state), config.log.keep_checkpoints, arrays, meta)
         except OSError as e:
             good = checkpoint.steps(run_dir)
             raise VnlError(
@@ -388,7 +409,9 @@ def _run(
 
     say(
         f"[vnl] {'resuming' if restored else 'training'} {config.env} (preset {config.preset}) on "
-        f"{loop.n_devices} {jax.default_backend()} device(s) -> {run_dir}"
+        f"{loop.n_devices} {jax.default_backend()} device(s)"
+        + (f" on each of {loop.process_count} processes" if loop.process_count > 1 else "")
+        + f" -> {run_dir}"
         + (f" from step {restored[0]:,}" if restored else "")
     )
     for name, stats in loop.randomization.items():
@@ -396,7 +419,7 @@ def _run(
             f"[vnl] randomize.{name}: factor mean {stats['mean']:.3f}, min {stats['min']:.3f}, "
             f"max {stats['max']:.3f} over {p.num_envs} envs"
         )
-    if loop.randomization and not restored:
+    if loop.randomization and not restored and lead:
         (run_dir / "randomization.json").write_text(json.dumps(loop.randomization, indent=2) + "\n")
     say("[vnl] compiling (first evaluation follows; on a CPU this takes 1-2 minutes for the ant, ~10 for the rat)...")
     interrupted = False
@@ -408,38 +431,44 @@ def _run(
                 n_evals[0] = 1  # checkpoint_every counts evaluations after the restored one
             else:
                 state = loop.init(config.seed)
-                state, metrics = loop.evaluate(state, {})
+                state, metrics = loop.evaluate(state, {}) if lead else (state, {})
                 record = make_record(0, time.time() - t_start, metrics)
                 save(0, state, record, force=True)
                 log(record)
             step = loop.env_steps(state)
+            # With several processes a stop is agreed on (any process's signal stops all of them
+            # at the same epoch), since checkpointing is collective.
+            stopping = distributed.any_process(stop.is_set())
             while step < p.num_timesteps:
-                if stop.is_set():
+                if stopping:
                     interrupted = True
                     break
                 state, training_metrics = loop.epoch(state)
                 step = loop.env_steps(state)
-                state, metrics = loop.evaluate(state, training_metrics)
+                state, metrics = loop.evaluate(state, training_metrics) if lead else (state, training_metrics)
                 record = make_record(step, wall_offset + time.time() - t_start, metrics)
-                save(step, state, record, force=stop.is_set())
+                stopping = distributed.any_process(stop.is_set())
+                save(step, state, record, force=stopping)
                 log(record)
-            interrupted = interrupted or (stop.is_set() and step < p.num_timesteps)
+            interrupted = interrupted or (stopping and step < p.num_timesteps)
         params = None if interrupted else loop.params(state)
+        saved = checkpoint.steps(run_dir) if lead else [step]
         result = TrainResult(
             run_dir=run_dir,
-            steps=checkpoint.steps(run_dir)[-1] if checkpoint.steps(run_dir) else 0,
+            steps=saved[-1] if saved else 0,
             interrupted=interrupted,
             final_metrics=records[-1] if records else {},
             records=records,
             wall_time=time.time() - t_start,
             params=params,
         )
-        if finish is not None and not interrupted:
+        if finish is not None and not interrupted and tracker is not None:
             video = finish(run_dir)
             if video is not None:
                 tracker.upload_video(video, f"{config.env} at step {result.steps:,}")
     finally:
-        tracker.close()
+        if tracker is not None:
+            tracker.close()
     if interrupted:
         say(
             f"[vnl] stopped at step {result.steps:,}; continue with `vnl train --resume {run_dir}`, or use the "
