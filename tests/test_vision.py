@@ -95,6 +95,7 @@ def test_image_follows_the_state_inside_jit_and_vmap():
     assert (geom[0] != geom[1]).mean() > 0.01 and not np.array_equal(rgb[0], rgb[1])
     for i, state in enumerate((d, moved)):  # each batch element is that state's own image
         np.testing.assert_array_equal(geom[i], jax.jit(cam.render)(state)[2])
+    np.testing.assert_array_equal(jax.jit(functools.partial(cam.render_batch, chunk=1))(batch)[2], geom)
     # The moved box's pixels agree with MuJoCo's renderer for the moved state too.
     host = mujoco.MjData(m)
     host.qpos[:] = np.asarray(moved.qpos)

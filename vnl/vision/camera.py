@@ -109,7 +109,8 @@ class Camera:
 
     def render(self, data: mjx.Data) -> tuple[jax.Array, jax.Array, jax.Array]:
         """(rgb, depth, geom) for one state: uint8 (H, W, 3), float32 (H, W) metres (FAR where
-        nothing is hit), int32 (H, W) geom ids (-1 = nothing). Vmap it over a batch of states."""
+        nothing is hit), int32 (H, W) geom ids (-1 = nothing). Vmap it over a batch of states, or
+        use `render_batch` (faster on a CPU)."""
         origin = data.cam_xpos[self.camera_id].astype(jp.float32)
         rays = jp.asarray(self._dirs) @ data.cam_xmat[self.camera_id].astype(jp.float32).T  # (P, 3) world
         best = jp.full(rays.shape[0], jp.inf, jp.float32)
@@ -121,10 +122,11 @@ class Camera:
             pnt = jp.einsum("nji,nj->ni", mat, origin - pos)  # ray origin in each geom's frame (n, 3)
             vec = jp.einsum("nji,pj->pni", mat, rays)  # ray directions in each geom's frame (P, n, 3)
             size = jp.asarray(geoms.size, jp.float32)
-            dist, local_normal = _INTERSECT[gtype](size, pnt[None], vec)  # (P, n), (P, n, 3)
-            k = jp.argmin(dist, axis=1)
+            dist = _INTERSECT[gtype](size, pnt[None], vec)  # (P, n)
+            k = jp.argmin(dist, axis=1)  # the nearest geom of this type per pixel
             d = jp.take_along_axis(dist, k[:, None], 1)[:, 0]
-            n_local = jp.take_along_axis(local_normal, k[:, None, None], 1)[:, 0]
+            v = jp.take_along_axis(vec, k[:, None, None], 1)[:, 0]
+            n_local = _NORMAL[gtype](size[k], pnt[k], v, _finite(d))  # only for that geom: (P, 3)
             n_world = jp.einsum("pij,pj->pi", mat[k], n_local)
             closer = d < best
             best = jp.where(closer, d, best)
@@ -139,11 +141,18 @@ class Camera:
         depth = jp.where(hit, best * jp.asarray(self._cos), FAR).reshape(self.height, self.width)
         return rgb, depth, best_id.reshape(self.height, self.width)
 
+    def render_batch(self, data: mjx.Data, chunk: int = 4) -> tuple[jax.Array, jax.Array, jax.Array]:
+        """`render` over a batch of states (leading axis B), `chunk` images at a time, so the
+        working set stays in cache (on a 2-core CPU, 64x64 in the ant's gaps corridor at B = 64:
+        2.7x the images/s of `vmap(render)`). Shapes as `render` with a leading B."""
+        return jax.lax.map(self.render, data, batch_size=chunk)
+
 
 # --- ray / primitive intersections in the geom's frame -------------------------------------------
-# Each takes size (n, 3), ray origins (1, n, 3) and unit directions (P, n, 3); returns the distance
-# to the first hit in front of the origin (inf if none), (P, n), and the surface normal there (not
-# normalized), (P, n, 3).
+# Each takes size (n, 3), ray origins (1, n, 3) and unit directions (P, n, 3) and returns the
+# distance to the first hit in front of the origin (inf if none), (P, n). The normals (not
+# normalized) are computed afterwards for the nearest geom only: size, origin, direction (P, 3),
+# distance (P,) -> (P, 3).
 
 
 def _first_root(a: jax.Array, b: jax.Array, c: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -158,26 +167,23 @@ def _first_root(a: jax.Array, b: jax.Array, c: jax.Array) -> tuple[jax.Array, ja
     return x0, x1
 
 
-def _plane(size: jax.Array, pnt: jax.Array, vec: jax.Array) -> tuple[jax.Array, jax.Array]:
+def _plane(size: jax.Array, pnt: jax.Array, vec: jax.Array) -> jax.Array:
     x = -pnt[..., 2] / jp.where(jp.abs(vec[..., 2]) < 1e-12, -1e-12, vec[..., 2])
     p = pnt[..., :2] + x[..., None] * vec[..., :2]
     inside = jp.all((size[:, :2] <= 0) | (jp.abs(p) <= size[:, :2]), -1)
     valid = (vec[..., 2] < 0) & (x >= 0) & inside  # front face only, as MuJoCo
-    n = jp.broadcast_to(jp.array([0.0, 0.0, 1.0]), vec.shape)
-    return jp.where(valid, x, jp.inf), n
+    return jp.where(valid, x, jp.inf)
 
 
-def _sphere(size: jax.Array, pnt: jax.Array, vec: jax.Array) -> tuple[jax.Array, jax.Array]:
+def _sphere(size: jax.Array, pnt: jax.Array, vec: jax.Array) -> jax.Array:
     x0, x1 = _first_root(jp.ones(vec.shape[:-1]), jp.sum(vec * pnt, -1), jp.sum(pnt * pnt, -1) - size[:, 0] ** 2)
-    x = jp.minimum(x0, x1)
-    return x, pnt + _finite(x)[..., None] * vec
+    return jp.minimum(x0, x1)
 
 
-def _ellipsoid(size: jax.Array, pnt: jax.Array, vec: jax.Array) -> tuple[jax.Array, jax.Array]:
+def _ellipsoid(size: jax.Array, pnt: jax.Array, vec: jax.Array) -> jax.Array:
     s = 1 / size**2
     x0, x1 = _first_root(jp.sum(s * vec * vec, -1), jp.sum(s * vec * pnt, -1), jp.sum(s * pnt * pnt, -1) - 1)
-    x = jp.minimum(x0, x1)
-    return x, s * (pnt + _finite(x)[..., None] * vec)
+    return jp.minimum(x0, x1)
 
 
 def _side(size: jax.Array, pnt: jax.Array, vec: jax.Array) -> jax.Array:
@@ -188,7 +194,7 @@ def _side(size: jax.Array, pnt: jax.Array, vec: jax.Array) -> jax.Array:
     return jp.minimum(jp.where(ok(x0), x0, jp.inf), jp.where(ok(x1), x1, jp.inf))
 
 
-def _capsule(size: jax.Array, pnt: jax.Array, vec: jax.Array) -> tuple[jax.Array, jax.Array]:
+def _capsule(size: jax.Array, pnt: jax.Array, vec: jax.Array) -> jax.Array:
     x = _side(size, pnt, vec)
     for sign in (1.0, -1.0):  # the two hemispherical caps
         centre = jp.stack([jp.zeros_like(size[:, 1]), jp.zeros_like(size[:, 1]), sign * size[:, 1]], -1)
@@ -197,12 +203,10 @@ def _capsule(size: jax.Array, pnt: jax.Array, vec: jax.Array) -> tuple[jax.Array
         for c in (c0, c1):
             on_cap = sign * (pnt[..., 2] + _finite(c) * vec[..., 2]) >= size[:, 1]
             x = jp.where(on_cap & (c < x), c, x)
-    hit = pnt + _finite(x)[..., None] * vec
-    axis_point = jp.clip(hit[..., 2], -size[:, 1], size[:, 1])
-    return x, hit - jp.stack([jp.zeros_like(axis_point), jp.zeros_like(axis_point), axis_point], -1)
+    return x
 
 
-def _cylinder(size: jax.Array, pnt: jax.Array, vec: jax.Array) -> tuple[jax.Array, jax.Array]:
+def _cylinder(size: jax.Array, pnt: jax.Array, vec: jax.Array) -> jax.Array:
     x = _side(size, pnt, vec)
     cap = jp.inf
     for sign in (1.0, -1.0):  # the two flat discs
@@ -211,24 +215,43 @@ def _cylinder(size: jax.Array, pnt: jax.Array, vec: jax.Array) -> tuple[jax.Arra
         p = pnt[..., :2] + c[..., None] * vec[..., :2]
         ok = (c >= 0) & (jp.sum(p * p, -1) <= size[:, 0] ** 2)
         cap = jp.minimum(cap, jp.where(ok, c, jp.inf))
-    on_side = x <= cap
-    x = jp.minimum(x, cap)
-    hit = pnt + _finite(x)[..., None] * vec
-    n_side = hit * jp.array([1.0, 1.0, 0.0])
-    n_cap = jp.stack([jp.zeros_like(x), jp.zeros_like(x), jp.sign(hit[..., 2])], -1)
-    return x, jp.where(on_side[..., None], n_side, n_cap)
+    return jp.minimum(x, cap)
 
 
-def _box(size: jax.Array, pnt: jax.Array, vec: jax.Array) -> tuple[jax.Array, jax.Array]:
-    safe = jp.where(jp.abs(vec) < 1e-12, 1e-12, vec)
-    t1, t2 = (-size - pnt) / safe, (size - pnt) / safe
+def _box(size: jax.Array, pnt: jax.Array, vec: jax.Array) -> jax.Array:
+    inv = 1 / jp.where(jp.abs(vec) < 1e-12, 1e-12, vec)  # one division, two multiplications
+    t1, t2 = (-size - pnt) * inv, (size - pnt) * inv
     near = jp.max(jp.minimum(t1, t2), -1)
     far = jp.min(jp.maximum(t1, t2), -1)
     valid = (near <= far) & (far >= 0)
-    x = jp.where(valid, jp.where(near >= 0, near, far), jp.inf)  # from inside: the exit face
-    face = jp.argmax(jp.minimum(t1, t2), -1)
-    n = jax.nn.one_hot(face, 3) * -jp.sign(safe)
-    return x, n
+    return jp.where(valid, jp.where(near >= 0, near, far), jp.inf)  # from inside: the exit face
+
+
+def _hit(pnt: jax.Array, vec: jax.Array, x: jax.Array) -> jax.Array:
+    return pnt + x[..., None] * vec
+
+
+def _zero_z(p: jax.Array) -> jax.Array:
+    return p * jp.array([1.0, 1.0, 0.0])
+
+
+def _normal_capsule(size: jax.Array, pnt: jax.Array, vec: jax.Array, x: jax.Array) -> jax.Array:
+    hit = _hit(pnt, vec, x)
+    axis = jp.clip(hit[..., 2], -size[..., 1], size[..., 1])
+    return hit - jp.stack([jp.zeros_like(axis), jp.zeros_like(axis), axis], -1)
+
+
+def _normal_cylinder(size: jax.Array, pnt: jax.Array, vec: jax.Array, x: jax.Array) -> jax.Array:
+    hit = _hit(pnt, vec, x)
+    on_cap = jp.abs(hit[..., 2]) / size[..., 1] > jp.linalg.norm(hit[..., :2], axis=-1) / size[..., 0]
+    cap = jp.stack([jp.zeros_like(x), jp.zeros_like(x), jp.sign(hit[..., 2])], -1)
+    return jp.where(on_cap[..., None], cap, _zero_z(hit))
+
+
+def _normal_box(size: jax.Array, pnt: jax.Array, vec: jax.Array, x: jax.Array) -> jax.Array:
+    hit = _hit(pnt, vec, x) / size
+    face = jp.argmax(jp.abs(hit), -1)
+    return jax.nn.one_hot(face, 3) * jp.sign(hit)
 
 
 def _finite(x: jax.Array) -> jax.Array:
@@ -242,4 +265,12 @@ _INTERSECT = {
     int(G.mjGEOM_ELLIPSOID): _ellipsoid,
     int(G.mjGEOM_CYLINDER): _cylinder,
     int(G.mjGEOM_BOX): _box,
+}
+_NORMAL = {
+    int(G.mjGEOM_PLANE): lambda size, pnt, vec, x: jp.broadcast_to(jp.array([0.0, 0.0, 1.0]), vec.shape),
+    int(G.mjGEOM_SPHERE): lambda size, pnt, vec, x: _hit(pnt, vec, x),
+    int(G.mjGEOM_CAPSULE): _normal_capsule,
+    int(G.mjGEOM_ELLIPSOID): lambda size, pnt, vec, x: _hit(pnt, vec, x) / size**2,
+    int(G.mjGEOM_CYLINDER): _normal_cylinder,
+    int(G.mjGEOM_BOX): _normal_box,
 }
