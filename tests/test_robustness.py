@@ -217,21 +217,26 @@ TWO_PROCESSES = textwrap.dedent(
     from vnl.cli import main
     from vnl.train import ppo
     out = {{}}
-    train = ppo.train
 
-    def spy(*args, **kwargs):  # the final parameters this process holds
-        result = train(*args, **kwargs)
-        leaves = [np.asarray(x) for x in jax.tree.leaves(result.params)]
-        out["params"] = hashlib.sha1(b"".join(x.tobytes() for x in leaves)).hexdigest()
-        out["finite"] = all(bool(np.isfinite(x).all()) for x in leaves)
-        return result
+    def spy(run):
+        def wrapped(*args, **kwargs):  # the final parameters this process holds
+            result = run(*args, **kwargs)
+            leaves = [np.asarray(x) for x in jax.tree.leaves(result.params)]
+            out["params"] = hashlib.sha1(b"".join(x.tobytes() for x in leaves)).hexdigest()
+            out["finite"] = all(bool(np.isfinite(x).all()) for x in leaves)
+            return result
+        return wrapped
 
-    ppo.train = spy
-    out["rc"] = main([
-        "train", "test_point", "--preset", "tiny", "--no-video", "--out", {run!r},
-        "--set", "randomize.joint_damping=[0.2,5.0]", "--set", "ppo.num_timesteps=2048",
-        "--coordinator", "127.0.0.1:{port}", "--num-processes", "2", "--process-id", sys.argv[1],
-    ])
+    ppo.train, ppo.resume = spy(ppo.train), spy(ppo.resume)
+    port, pid, mode = sys.argv[1:]
+    join = ["--coordinator", "127.0.0.1:" + port, "--num-processes", "2", "--process-id", pid]
+    if mode == "train":
+        out["rc"] = main([
+            "train", "test_point", "--preset", "tiny", "--no-video", "--out", {run!r},
+            "--set", "randomize.joint_damping=[0.2,5.0]", "--set", "ppo.num_timesteps=2048", *join,
+        ])
+    else:
+        out["rc"] = main(["train", "--resume", {run!r}, "--steps", "4096", *join])
     out["processes"], out["devices"] = jax.process_count(), jax.device_count()
     print("RESULT" + json.dumps(out), flush=True)
     """
@@ -246,14 +251,13 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def test_trains_on_two_processes_and_the_checkpoint_resumes_on_one(tmp_path):
-    """Multi-host on one machine: 2 processes (1 CPU device each) joined by jax.distributed."""
-    run = tmp_path / "run"
-    script = TWO_PROCESSES.format(tests=str(ROOT / "tests"), run=str(run), port=_free_port())
+def _two_processes(script: str, mode: str) -> tuple[list[dict], list[str]]:
+    """Runs `script` as processes 0 and 1 of one jax.distributed run; (results, stdouts)."""
     env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    port = str(_free_port())
     procs = [
         subprocess.Popen(
-            [sys.executable, "-c", script, str(i)],
+            [sys.executable, "-c", script, port, str(i), mode],
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,
@@ -276,13 +280,26 @@ def test_trains_on_two_processes_and_the_checkpoint_resumes_on_one(tmp_path):
     lead, other = outs[0][0], outs[1][0]
     assert "on 1 cpu device(s) on each of 2 processes" in lead and "[vnl] step" in lead
     assert "[vnl]" not in other  # only process 0 reports and writes
+    return results, [stdout for stdout, _ in outs]
+
+
+def test_trains_on_two_processes_and_the_checkpoint_resumes_on_one(tmp_path):
+    """Multi-host on one machine: 2 processes (1 CPU device each) joined by jax.distributed."""
+    run = tmp_path / "run"
+    script = TWO_PROCESSES.format(tests=str(ROOT / "tests"), run=str(run))
+    _two_processes(script, "train")
     # The checkpoint holds both processes' envs, as a single-process run would.
     _, arrays, _ = checkpoint.load_train_state(run)
     assert arrays[".env.data.qpos"].shape[0] == 16
     assert len(np.unique(arrays[".env.data.qpos"][:, 0])) == 16
     assert [r["step"] for r in metrics_io.read(run / "metrics.jsonl")] == [0, 2048]
-    result = ppo.resume(run, assignments=["ppo.num_timesteps=4096"], say=quiet)
-    assert not result.interrupted and result.steps == 4096
+    # Both processes continue the run together, then one process continues it alone.
+    _, stdouts = _two_processes(script, "resume")
+    assert "from step 2,048" in stdouts[0]
+    assert [r["step"] for r in metrics_io.read(run / "metrics.jsonl")] == [0, 2048, 4096]
+    result = ppo.resume(run, assignments=["ppo.num_timesteps=6144"], say=quiet)
+    assert not result.interrupted and result.steps == 6144
+    assert [r["step"] for r in metrics_io.read(run / "metrics.jsonl")] == [0, 2048, 4096, 6144]
     assert all(np.isfinite(np.asarray(x)).all() for x in jax.tree.leaves(result.params))
 
 
@@ -410,6 +427,18 @@ def test_backend_and_impl_errors_name_the_fix():
         train_config.build(
             "brax_ant_run", "cpu", assignments=["env_config.backend=spring", "randomize.friction=[0.5,1.5]"]
         )
+    with pytest.raises(VnlError, match=r"actuator_gear has 2 values; this model has 8 actuators"):
+        registry.make("brax_ant_run", actuator_gear=[100, 100])
+    with pytest.raises(VnlError, match=r"actuator_gear must be positive"):
+        registry.make("brax_ant_run", actuator_gear=[-1.0] * 8)
+
+
+def test_actuator_gear_reaches_mjx_and_brax():
+    gear = [150.0, 140, 130, 120, 110, 100, 90, 80]
+    env = registry.make("brax_ant_run", backend="spring", actuator_gear=gear)
+    np.testing.assert_allclose(env.mj_model.actuator_gear[:, 0], gear)
+    np.testing.assert_allclose(np.asarray(env.mjx_model.actuator_gear[:, 0]), gear)
+    np.testing.assert_allclose(np.asarray(env._brax.sys.actuator.gear), gear)
 
 
 def test_brax_pipeline_drives_the_task_and_auto_reset():

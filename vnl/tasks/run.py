@@ -46,6 +46,9 @@ class RunConfig(WalkerTaskConfig):
     floor_size: float = 50.0  # rendered half-extent of the floor
     # Physics: MJX (default) or one of Brax's pipelines (ant and humanoid; see vnl.envs.brax_physics).
     backend: Literal["mjx", "generalized", "positional", "spring"] = "mjx"
+    # Actuator gears (one per actuator) replacing the model's, e.g. Brax's humanoid env's gears for
+    # its positional/spring pipelines (README, physics backends); None keeps the model's.
+    actuator_gear: tuple[float, ...] | None = None
 
     def validate(self) -> None:
         super().validate()
@@ -67,6 +70,8 @@ class RunConfig(WalkerTaskConfig):
             raise VnlError(f"healthy_min_upright must be in [-1, 1], got {self.healthy_min_upright}")
         if self.floor_size <= 0:
             raise VnlError(f"floor_size must be > 0, got {self.floor_size}")
+        if self.actuator_gear is not None and not all(g > 0 for g in self.actuator_gear):
+            raise VnlError(f"actuator_gear must be positive numbers, one per actuator, got {list(self.actuator_gear)}")
 
 
 ANT_RUN = RunConfig(iterations=2, ls_iterations=6, episode_length=500, ctrl_cost_weight=0.1)
@@ -154,6 +159,12 @@ class Run(WalkerTask):
         walker = build_walker(config)
         arena = None if walker.standalone else floor.build(config.floor_size)
         model, report = compile_world(walker, arena)
+        if config.actuator_gear is not None:
+            if len(config.actuator_gear) != model.nu:
+                raise VnlError(
+                    f"actuator_gear has {len(config.actuator_gear)} values; this model has {model.nu} actuators"
+                )
+            model.actuator_gear[:, 0] = config.actuator_gear
         super().__init__(config, walker, model, report)
         # The free joint's x/y are excluded from the state observation (translation invariance).
         self._obs_qpos_start = 2
