@@ -69,6 +69,20 @@ def _unreplicate(tree: Any) -> Any:
     return jax.tree.map(lambda x: x.addressable_shards[0].data.squeeze(0), tree)
 
 
+def _without_pixels(obs: Any) -> Any:
+    """The observations the normalizer tracks: all but images (Brax's `pixels/` keys)."""
+    if isinstance(obs, dict):
+        return {k: v for k, v in obs.items() if not k.startswith("pixels/")}
+    return obs
+
+
+def _normalized_spec(observation_size: Any) -> Any:
+    """Specs of the normalized observations: (width,) or a dict of them without the images."""
+    if isinstance(observation_size, dict):
+        return {k: specs.Array(tuple(v), jp.dtype("float32")) for k, v in _without_pixels(observation_size).items()}
+    return specs.Array((observation_size,), jp.dtype("float32"))
+
+
 def epoch_length(config: TrainConfig) -> int:
     """Training steps per epoch (between two evaluations), as Brax computes it."""
     p = config.ppo
@@ -135,6 +149,7 @@ class PPOLoop:
         self._loss_and_pgrad = gradients.loss_and_pgrad(loss_fn, pmap_axis_name=AXIS, has_aux=True)
         self._epoch = jax.pmap(self._training_epoch, axis_name=AXIS, donate_argnums=(0, 1))
         self._reset = jax.pmap(self.env.reset, axis_name=AXIS)
+        self._identity = jax.pmap(lambda x: x, axis_name=AXIS)
         eval_env = wrap_for_training(
             env, episode_length=self.episode_length, action_repeat=p.action_repeat, randomization_fn=eval_models
         )
@@ -179,25 +194,40 @@ class PPOLoop:
         global_key, local_key = jax.random.split(key)
         local_key = jax.random.fold_in(local_key, 0)  # Brax's key for process 0
         local_key, key_env, eval_key = jax.random.split(local_key, 3)
-        key_policy, key_value = jax.random.split(global_key)
         if self.process_count > 1:
             key_env = jax.random.fold_in(key_env, self.process_index)
         key_envs = jax.random.split(key_env, self.local_envs)
         key_envs = jp.reshape(key_envs, (self.n_devices, -1) + key_envs.shape[1:])
         env_state = self._reset(key_envs)
+        training = self._replicate(self.init_training(global_key))
+        return LoopState(training=training, env=env_state, key=local_key, eval_key=eval_key)
+
+    def init_training(self, key: jax.Array) -> TrainingState:
+        """Brax's `TrainingState` before training (one copy): fresh networks drawn from `key`,
+        the optimizer state, an empty observation normalizer, 0 env steps."""
+        key_policy, key_value = jax.random.split(key)
         params = ppo_losses.PPONetworkParams(
             policy=self.network.policy_network.init(key_policy),
             value=self.network.value_network.init(key_value),
         )
-        obs_spec = specs.Array((self.observation_size,), jp.dtype("float32"))
-        training = TrainingState(
+        return TrainingState(
             optimizer_state=self.optimizer.init(params),
             params=params,
-            normalizer_params=running_statistics.init_state(obs_spec),
+            normalizer_params=running_statistics.init_state(_normalized_spec(self.observation_size)),
             env_steps=brax_types.UInt64(hi=0, lo=0),
         )
-        training = jax.device_put_replicated(training, self.devices)
-        return LoopState(training=training, env=env_state, key=local_key, eval_key=eval_key)
+
+    def _place(self, tree: Any) -> Any:
+        """Host arrays with a leading axis of local devices -> one slice per device, sharded as
+        the epoch's outputs are (`jax.device_put_replicated` gives another sharding, and the
+        epoch would be compiled a second time for it)."""
+        return self._identity(jax.tree.map(np.asarray, tree))
+
+    def _replicate(self, tree: Any) -> Any:
+        """A copy of `tree` on every local device (leading axis = device)."""
+        return self._place(
+            jax.tree.map(lambda x: np.broadcast_to(np.asarray(x), (self.n_devices,) + np.shape(x)), tree)
+        )
 
     def to_arrays(self, state: LoopState, gather: bool = True) -> dict[str, np.ndarray]:
         """Host arrays named by their path in the state; env arrays flat over environments,
@@ -253,11 +283,9 @@ class PPOLoop:
         env = jax.tree.map(
             lambda x: jp.asarray(x[mine].reshape((self.n_devices, per_device) + x.shape[1:])), restored.env
         )
-        shards = [jax.tree.map(lambda x, i=i: x[i], env) for i in range(self.n_devices)]
-        env = jax.device_put_sharded(shards, self.devices)
         return LoopState(
-            training=jax.device_put_replicated(jax.tree.map(jp.asarray, restored.training), self.devices),
-            env=env,
+            training=self._replicate(restored.training),
+            env=self._place(env),
             key=jp.asarray(restored.key),
             eval_key=jp.asarray(restored.eval_key),
         )
@@ -329,7 +357,9 @@ class PPOLoop:
         # (batch_size * num_minibatches, unroll_length, ...)
         data = jax.tree.map(lambda x: jp.swapaxes(x, 1, 2), data)
         data = jax.tree.map(lambda x: jp.reshape(x, (-1,) + x.shape[2:]), data)
-        normalizer = running_statistics.update(training.normalizer_params, data.observation, pmap_axis_name=AXIS)
+        normalizer = running_statistics.update(
+            training.normalizer_params, _without_pixels(data.observation), pmap_axis_name=AXIS
+        )
         (opt_state, params, _), metrics = jax.lax.scan(
             functools.partial(self._sgd_step, data=data, normalizer=normalizer),
             (training.optimizer_state, training.params, key_sgd),
