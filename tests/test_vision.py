@@ -144,3 +144,166 @@ def test_unsupported_geoms_and_bad_cameras_are_clear_errors():
         Camera(m, "nope")
     with pytest.raises(VnlError, match="image size must be positive"):
         Camera(m, "c", width=0)
+
+
+# --- pixel observations (vision=True) ------------------------------------------------------------
+
+
+@functools.cache
+def target_env():
+    return vnl.make("find_target", vision={"width": 24, "height": 24})
+
+
+def red_pixels(px: np.ndarray) -> np.ndarray:
+    return (px[..., 0] > 150) & (px[..., 1] < 80) & (px[..., 2] < 80)
+
+
+def test_pixel_observation_shows_where_the_target_is_and_follows_the_state():
+    env = target_env()
+    key = "pixels/egocentric"
+    assert env.observation_size == {"state": (2,), key: (24, 24, 3)}
+    keys = jax.random.split(jax.random.PRNGKey(0), 4)
+    s = jax.jit(jax.vmap(env.reset))(keys)
+    px = np.asarray(s.obs[key])
+    assert px.dtype == np.uint8 and px.shape == (4, 24, 24, 3)
+    red = red_pixels(px)
+    assert red.reshape(4, -1).any(1).all()  # every image shows the target ...
+    assert len({r.tobytes() for r in red}) == 4  # ... somewhere else each episode
+    # ... in the direction where it is (the camera looks down: image right = +x, image up = +y).
+    to_target = np.asarray(s.data.mocap_pos[:, 0, :2] - s.data.qpos[:, :2])
+    for i in range(4):
+        rows, cols = np.nonzero(red[i])
+        seen = np.array([cols.mean() - 11.5, 11.5 - rows.mean()])
+        assert seen @ to_target[i] / (np.linalg.norm(seen) * np.linalg.norm(to_target[i])) > 0.95
+    # Moving the ball moves the picture; the image is the new state's.
+    step = jax.jit(jax.vmap(env.step))
+    push = jp.ones((4, 2))
+    s1 = step(s, push)
+    moved = s1
+    for _ in range(10):
+        moved = step(moved, push)
+    assert (np.asarray(moved.obs[key]) != px).any(axis=(1, 2, 3)).all()
+    own = jax.jit(jax.vmap(env.pixels))(moved.data)
+    np.testing.assert_array_equal(np.asarray(moved.obs[key]), np.asarray(own))
+    # Training renders all envs at once (Camera.render_batch): the same images.
+    from vnl.envs.wrappers import wrap_for_training
+
+    w = wrap_for_training(env, episode_length=50)
+    ws = jax.jit(w.reset)(keys)
+    np.testing.assert_array_equal(np.asarray(ws.obs[key]), px)
+    ws1 = jax.jit(w.step)(ws, push)
+    np.testing.assert_array_equal(np.asarray(ws1.obs[key]), np.asarray(s1.obs[key]))
+    np.testing.assert_array_equal(np.asarray(ws1.obs["state"]), np.asarray(s1.obs["state"]))
+
+
+def test_depth_and_rgbd_modes():
+    env = vnl.make("find_target", vision={"width": 16, "height": 16, "mode": "rgbd", "depth_max": 4.0})
+    s = jax.jit(env.reset)(jax.random.PRNGKey(1))
+    px = np.asarray(s.obs["pixels/egocentric"])
+    assert px.shape == (16, 16, 4)
+    _, depth, _ = env.camera.render(s.data)
+    expected = np.round(np.clip(np.asarray(depth) / 4.0, 0, 1) * 255)
+    np.testing.assert_array_equal(px[..., 3], expected)
+    assert 0 < px[..., 3].min() < px[..., 3].max() < 255  # the floor is nearer than 4 m, the ball nearer still
+
+
+def test_vision_errors_name_the_setting_before_compiling():
+    from vnl.train import config as train_config
+
+    with pytest.raises(VnlError, match=r"no camera 'nope' in the model; cameras: side, egocentric"):
+        vnl.make("find_target", vision={"camera": "nope"})
+    with pytest.raises(VnlError, match=r"vision\.width must be in \[8, 512\]"):
+        vnl.make("find_target", vision={"width": 4})
+    with pytest.raises(VnlError, match=r"unknown config key vision\.colour"):
+        vnl.make("find_target", vision={"colour": True})
+    with pytest.raises(VnlError, match=r"no egocentric camera; set vision.camera to one of: track, side, back"):
+        vnl.make("brax_ant_run", vision=True)
+    with pytest.raises(VnlError, match=r"cannot ray-cast hfield geoms"):
+        vnl.make("ant_escape_bowl", vision=True)
+    with pytest.raises(VnlError, match=r"cnn_channels, cnn_kernel_sizes and cnn_strides need one value per"):
+        train_config.build("find_target", "tiny", assignments=["network.cnn_strides=[2]"])
+
+
+def test_vision_run_trains_resumes_evaluates_and_renders_what_the_policy_sees(tmp_path):
+    """`vnl train find_target --vision` end to end, on a tiny budget and a tiny CNN."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from vnl.io import checkpoint
+    from vnl.io import metrics as metrics_io
+    from vnl.io.video import read_mp4
+    from vnl.train import ppo
+
+    out = tmp_path / "vision"
+    vnl_cmd = [sys.executable, "-m", "vnl.cli"]
+    small = ["vision.width=16", "vision.height=16", "network.cnn_channels=[4]", "network.cnn_kernel_sizes=[3]"]
+    small += ["network.cnn_strides=[2]", "network.cnn_pool=spatial_softmax", "ppo.num_timesteps=2048"]
+    args = ["train", "find_target", "--vision", "--preset", "tiny", "--out", str(out), "--no-video"]
+    for a in small:
+        args += ["--set", a]
+    root = Path(__file__).resolve().parents[1]
+    p = subprocess.run([*vnl_cmd, *args], capture_output=True, text=True, timeout=900, cwd=root)
+    assert p.returncode == 0, p.stdout + p.stderr
+    # Checkpoints hold the pixel observations of every env; the run continues exactly from them.
+    _, arrays, _ = checkpoint.load_train_state(out)
+    assert arrays[".env.obs['pixels/egocentric']"].shape == (16, 16, 16, 3)
+    result = ppo.resume(out, assignments=["ppo.num_timesteps=4096"], say=lambda _: None)
+    assert result.steps == 4096
+    assert [r["step"] for r in metrics_io.read(out / "metrics.jsonl")] == [0, 2048, 4096]
+    # The policy reads the pixels: the same state with a blank image gives another action.
+    run = vnl.policy.load_run(out)
+    s = jax.jit(run.env.reset)(jax.random.PRNGKey(3))
+    obs = jax.tree.map(lambda x: x[None], s.obs)
+    blank = {**obs, "pixels/egocentric": jp.zeros_like(obs["pixels/egocentric"])}
+    a, b = (np.asarray(run.policy(o, jax.random.PRNGKey(0))) for o in (obs, blank))
+    assert a.shape == (1, 2) and np.abs(a - b).max() > 1e-6
+    # eval; render --camera egocentric: the external camera | the policy's 16x16 view, upscaled.
+    p = subprocess.run([*vnl_cmd, "eval", str(out), "--episodes", "4"], capture_output=True, text=True, cwd=root)
+    assert p.returncode == 0 and "reward/approach" in p.stdout, p.stdout + p.stderr
+    video = tmp_path / "ego.mp4"
+    render = ["render", str(out), "--camera", "egocentric", "--steps", "5", "--width", "64", "--height", "48"]
+    p = subprocess.run([*vnl_cmd, *render, "--out", str(video)], capture_output=True, text=True, cwd=root)
+    assert p.returncode == 0, p.stdout + p.stderr
+    frames = read_mp4(str(video))
+    assert frames.shape[1:] == (48, 64 + 48, 3)
+    policy_view = frames[0, :, 64:].astype(int)
+    assert (np.abs(np.diff(policy_view, axis=1)).sum(-1) > 60).any()  # the target's edge, not a blank panel
+
+
+def test_im2col_convolution_equals_xlas_and_leaves_brax_networks_unchanged():
+    from jax import lax
+
+    from vnl.train.conv import cpu_convolutions, im2col_conv
+
+    key = jax.random.PRNGKey(0)
+    x = jax.random.normal(key, (3, 17, 20, 5))
+    for kernel, strides, padding in [
+        ((3, 3), (1, 1), "SAME"),
+        ((4, 4), (2, 2), "SAME"),
+        ((8, 8), (4, 4), "VALID"),
+        ((3, 2), (2, 3), ((1, 2), (0, 1))),
+    ]:
+        w = jax.random.normal(jax.random.fold_in(key, kernel[0]), (*kernel, 5, 7))
+        conv = functools.partial(lax.conv_general_dilated, dimension_numbers=("NHWC", "HWIO", "NHWC"))
+        np.testing.assert_allclose(
+            im2col_conv(x, w, strides, padding), conv(x, w, strides, padding), rtol=1e-5, atol=1e-4
+        )
+        grads = [
+            jax.grad(lambda w, f=f, s=strides, p=padding: jp.sum(jp.sin(f(x, w, s, p))))(w) for f in (im2col_conv, conv)
+        ]
+        np.testing.assert_allclose(grads[0], grads[1], rtol=1e-4, atol=1e-4)
+    # Swapped into Brax's vision network: the same parameters and the same outputs.
+    from brax.training.acme import running_statistics, specs
+    from brax.training.agents.ppo import networks_vision
+
+    norm = running_statistics.init_state({"state": specs.Array((2,), jp.float32)})
+    sizes = {"state": (2,), "pixels/cam": (16, 16, 3)}
+    nets = networks_vision.make_ppo_networks_vision(sizes, 2, policy_obs_key="state", value_obs_key="state")
+    params = nets.policy_network.init(key)
+    obs = {"state": jp.ones((4, 2)), "pixels/cam": jax.random.uniform(key, (4, 16, 16, 3))}
+    plain = nets.policy_network.apply(norm, params, obs)
+    with cpu_convolutions():
+        swapped = nets.policy_network.apply(norm, params, obs)
+        assert jax.tree.structure(nets.policy_network.init(key)) == jax.tree.structure(params)
+    np.testing.assert_allclose(swapped, plain, rtol=1e-5, atol=1e-5)

@@ -111,6 +111,8 @@ def cmd_train(args: argparse.Namespace, gl: str | None) -> int:
         flags["seed"] = args.seed
     if args.no_video:
         flags.setdefault("log", {})["video"] = False
+    if args.vision:
+        flags["vision"] = {"enabled": True}
 
     def finish(run_dir: Path) -> Path | None:
         return _final_video(run_dir, config, gl) if config.log.video else None
@@ -231,7 +233,7 @@ def cmd_render(args: argparse.Namespace, gl: str | None) -> int:
             from vnl.policy import read_config
 
             config = read_config(args.run_dir)
-            env = registry.entry(config.env).factory(config.resolved_env_config())
+            env = config.make_env()
         else:
             from vnl.envs import registry
 
@@ -316,6 +318,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--steps", type=int, help="total environment steps (ppo.num_timesteps)")
     p.add_argument("--num-envs", type=int, help="parallel environments (ppo.num_envs)")
     p.add_argument("--no-video", action="store_true", help="skip the final-policy video")
+    p.add_argument("--vision", action="store_true", help="the policy also sees its egocentric camera (vision.enabled)")
     g = p.add_argument_group("multi-host (one process per host; process 0 writes the run directory)")
     g.add_argument("--distributed", action="store_true", help="join a multi-process run detected from SLURM/MPI")
     g.add_argument("--coordinator", metavar="HOST:PORT", help="manual launch: process 0's address")

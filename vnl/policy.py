@@ -42,13 +42,17 @@ def read_config(run_dir: str | Path) -> TrainConfig:
 
 
 def make_network(config: TrainConfig, env: Env) -> Any:
-    """Brax's `PPONetworks` (policy, value, action distribution) with the run's sizes."""
+    """Brax's `PPONetworks` (policy, value, action distribution) with the run's sizes (and CNN,
+    for an env with pixel observations)."""
     from brax.training.acme import running_statistics
 
     from vnl.train.ppo import network_factory
 
     normalize = running_statistics.normalize if config.ppo.normalize_observations else (lambda x, y: x)
-    return network_factory(config.network)(env.observation_size, env.action_size, preprocess_observations_fn=normalize)
+    vision = isinstance(env.observation_size, dict)
+    return network_factory(config.network, vision)(
+        env.observation_size, env.action_size, preprocess_observations_fn=normalize
+    )
 
 
 def make_policy_fn(config: TrainConfig, env: Env, params: Any, deterministic: bool) -> Policy:
@@ -59,7 +63,8 @@ def make_policy_fn(config: TrainConfig, env: Env, params: Any, deterministic: bo
     inference = ppo_networks.make_inference_fn(network)(params, deterministic=deterministic)
 
     def policy(obs: jax.Array, rng: jax.Array) -> jax.Array:
-        """obs: (..., observation_size) -> action (..., action_size) in [-1, 1]."""
+        """obs: (..., observation_size) (or the env's dict of arrays) -> action (..., action_size)
+        in [-1, 1]."""
         action, _ = inference(obs, rng)
         return action
 
@@ -68,13 +73,21 @@ def make_policy_fn(config: TrainConfig, env: Env, params: Any, deterministic: bo
 
 def load_run(run_dir: str | Path, deterministic: bool = True, step: int | None = None) -> LoadedRun:
     """Reads config.yaml and the newest readable (or the given) checkpoint of `run_dir`."""
-    from vnl.envs import registry
-
     config = read_config(run_dir)
     loaded_step, params = checkpoint.load(run_dir, step)
-    env = registry.entry(config.env).factory(config.resolved_env_config())
+    env = config.make_env()
     expected = env.observation_size
-    got = params[0].mean.shape[-1] if config.ppo.normalize_observations else expected
+    state_size = expected["state"][-1] if isinstance(expected, dict) else expected
+    mean = params[0].mean
+    if isinstance(mean, dict) != isinstance(expected, dict):
+        seen = "pixels" if isinstance(mean, dict) else "no pixels"
+        raise VnlError(
+            f"checkpoint of {run_dir} was trained with {seen}, but its config says otherwise; was config.yaml edited?"
+        )
+    got = (mean["state"] if isinstance(mean, dict) else mean).shape[-1]
+    if not config.ppo.normalize_observations:
+        got = state_size
+    expected = state_size
     if got != expected:
         raise VnlError(
             f"checkpoint of {run_dir} expects observations of width {got}, but {config.env} "

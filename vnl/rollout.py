@@ -116,14 +116,69 @@ def policy_video(
 ) -> tuple[str, int]:
     """Renders one episode of `policy` (until it ends or `steps`) to an .mp4; returns (path, frames).
 
+    With the env's egocentric camera (or, for a vision env, the camera the policy sees through),
+    each frame shows the default external camera on the left and, on the right, the in-graph
+    camera's image at the policy's resolution (upscaled without smoothing): what the policy saw.
+
     Raises `VnlError` for an unknown camera (before rolling out) or when OpenGL is unavailable.
     """
     from vnl.io import video
 
-    video.resolve_camera(env.mj_model, camera)
+    cam_id = video.resolve_camera(env.mj_model, camera)
+    view = _policy_view(env, cam_id)
     steps = steps or int(round(10.0 / env.dt))
     r = rollout(env, policy, jax.random.PRNGKey(seed), episodes=1, steps=steps)
     n = int(r.lengths[0]) + 1  # the reset frame plus every active step
-    frames = video.render_frames(env.mj_model, r.qpos[0, :n], camera, width, height, mocap_pos=r.mocap_pos[0, :n])
+    qpos, mocap = r.qpos[0, :n], r.mocap_pos[0, :n]
+    if view is None:
+        frames = video.render_frames(env.mj_model, qpos, camera, width, height, mocap_pos=mocap)
+    else:  # the default external camera | what the in-graph camera (the policy's eyes) sees
+        outside = video.render_frames(env.mj_model, qpos, None, width, height, mocap_pos=mocap)
+        frames = np.concatenate([outside, _upscale(camera_frames(env, view, qpos, mocap), height)], axis=2)
     video.write_mp4(frames, path, fps=1.0 / env.dt)
     return str(path), n
+
+
+def _policy_view(env: Env, cam_id: int) -> Any:
+    """The in-graph `Camera` for a side-by-side video when `cam_id` is the camera the policy sees
+    through (a vision env's camera, else the model's egocentric camera at 64x64), else None."""
+    from vnl.vision.camera import Camera
+    from vnl.vision.env import VisionEnv, default_camera
+
+    if isinstance(env, VisionEnv):
+        if cam_id == env.camera.camera_id:
+            return env.camera
+        return None
+    try:
+        name = default_camera(env.mj_model)
+    except Exception:  # noqa: BLE001 - no egocentric camera: nothing to put side by side
+        return None
+    camera = Camera(env.mj_model, name, skip_unsupported=True)
+    return camera if cam_id == camera.camera_id else None
+
+
+def camera_frames(env: Env, camera: Any, qpos: np.ndarray, mocap_pos: np.ndarray) -> np.ndarray:
+    """In-graph camera RGB images of the states (T, nq) / (T, nmocap, 3): uint8 (T, H, W, 3)."""
+    from mujoco import mjx
+
+    model = env.mjx_model
+
+    @jax.jit
+    def images(q: jax.Array, m: jax.Array) -> jax.Array:
+        def one(q: jax.Array, m: jax.Array) -> jax.Array:
+            data = mjx.make_data(model).replace(qpos=q, mocap_pos=m)
+            data = mjx.camlight(model, mjx.com_pos(model, mjx.kinematics(model, data)))
+            return camera.render(data)[0]
+
+        return jax.lax.map(lambda x: one(*x), (q, m), batch_size=4)
+
+    return np.asarray(images(jp.asarray(qpos, jp.float32), jp.asarray(mocap_pos, jp.float32)))
+
+
+def _upscale(images: np.ndarray, height: int) -> np.ndarray:
+    """Nearest-neighbour upscaling of (T, h, w, C) to (T, height, height * w // h, C)."""
+    h, w = images.shape[1:3]
+    rows = np.arange(height) * h // height
+    width = height * w // h
+    cols = np.arange(width) * w // width
+    return images[:, rows][:, :, cols]

@@ -9,7 +9,7 @@ from typing import Any
 from vnl import config as config_lib
 from vnl.envs.base import Env
 from vnl.errors import VnlError
-from vnl.tasks import escape_bowl, run, run_gaps
+from vnl.tasks import escape_bowl, find_target, run, run_gaps
 
 
 @dataclasses.dataclass(frozen=True)
@@ -39,6 +39,34 @@ _RODENT_PRESETS = {
         "log": {"video_seconds": 4.0},
     },
     "gpu": {"ppo": {"num_envs": 2048}},  # the notebooks' rodent setting (DESIGN.md §5)
+}
+
+# find_target trains from pixels on a CPU: 32x32 images, a small CNN whose spatial softmax keeps
+# where the target is (README, Vision). Blind (no --vision), the same preset is the baseline.
+_FIND_TARGET_PRESETS = {
+    "cpu": {
+        "ppo": {
+            "num_timesteps": 300_000,
+            "num_envs": 128,
+            "batch_size": 128,
+            "num_minibatches": 4,
+            "num_updates_per_batch": 4,
+            "unroll_length": 10,
+            "num_evals": 11,
+            "num_eval_envs": 64,
+            "entropy_cost": 1e-3,
+        },
+        "network": {
+            "policy_hidden_layer_sizes": [64, 64],
+            "value_hidden_layer_sizes": [64, 64],
+            "cnn_channels": [8, 16],
+            "cnn_kernel_sizes": [4, 3],
+            "cnn_strides": [2, 2],
+            "cnn_pool": "spatial_softmax",
+        },
+        "vision": {"width": 32, "height": 32},
+        "log": {"video_seconds": 4.0},
+    },
 }
 
 _REGISTRY: dict[str, Entry] = {
@@ -89,6 +117,12 @@ _REGISTRY: dict[str, Entry] = {
         escape_bowl.EscapeBowl,
         escape_bowl.ANT_ESCAPE_BOWL,
         "The ant climbs out of the bumpy bowl.",
+    ),
+    "find_target": Entry(
+        find_target.FindTarget,
+        find_target.FIND_TARGET,
+        "A ball rolls to a red target placed at random; only its egocentric camera can see it (train with --vision).",
+        _FIND_TARGET_PRESETS,
     ),
     # Tasks for any walker: set walker=ant|rodent or walker_xml=path/to/model.xml, root_body=...
     "run": Entry(
@@ -167,10 +201,25 @@ def env_config(name: str, overrides: dict[str, Any] | None = None) -> Any:
         raise VnlError(f"{name}: {e}") from None
 
 
-def make(name: str, **overrides: Any) -> Env:
+def make(name: str, vision: bool | dict[str, Any] | Any = False, **overrides: Any) -> Env:
     """Builds environment `name`; keyword overrides replace fields of its default config.
+
+    `vision=True` (or a dict / `vnl.vision.VisionConfig` of camera settings: camera, width,
+    height, mode, ...) returns the env with a dict observation {"state", "pixels/<camera>"}
+    rendered by the in-graph camera (`vnl.vision.VisionEnv`).
 
     Bad names, unknown keys and invalid values raise `VnlError` before anything is compiled.
     """
+    from vnl.vision.env import VisionConfig, VisionEnv
+
     e = entry(name)
-    return e.factory(env_config(name, overrides))
+    if isinstance(vision, dict):
+        vision = config_lib.from_dict(VisionConfig, {"enabled": True, **vision}, prefix="vision.")
+    elif vision is True:
+        vision = VisionConfig(enabled=True)
+    elif vision is not False and not isinstance(vision, VisionConfig):
+        raise VnlError(f"vision must be True/False, a dict of camera settings or a VisionConfig, got {vision!r}")
+    env = e.factory(env_config(name, overrides))
+    if isinstance(vision, VisionConfig) and vision.enabled:
+        env = VisionEnv(env, vision)
+    return env

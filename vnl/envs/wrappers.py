@@ -50,6 +50,21 @@ class AutoResetWrapper(brax_training.Wrapper):
         return state.replace(data=data, obs=obs)
 
 
+class PixelsWrapper(brax_training.Wrapper):
+    """Adds the pixel observation of a `VisionEnv` to a batched blind env's states."""
+
+    def __init__(self, env: Any, vision: Any) -> None:
+        super().__init__(env)
+        self.vision = vision
+
+    def reset(self, rng: jax.Array) -> State:
+        return self.vision.add_pixels(self.env.reset(rng), batched=True)
+
+    def step(self, state: State, action: jax.Array) -> State:
+        state = self.env.step(state.replace(obs=state.obs["state"]), action)
+        return self.vision.add_pixels(state, batched=True)
+
+
 def wrap_for_training(
     env: Any,
     episode_length: int = 1000,
@@ -61,13 +76,21 @@ def wrap_for_training(
 
     `randomization_fn(mjx_model) -> (batched_model, in_axes)` (Brax's hook with its rng bound,
     see `vnl.envs.randomize`) gives every env its own physical parameters; `axis_name` is the
-    pmap axis when that batch spans all devices.
+    pmap axis when that batch spans all devices. A `vnl.vision.VisionEnv` is stepped blind and
+    batched, then every env's image is rendered at once (`Camera.render_batch`).
     """
+    from vnl.vision.env import VisionEnv
+
+    vision = env if isinstance(env, VisionEnv) else None
+    if vision is not None:  # step the blind env batched, then render every env's image at once
+        env = vision.blind
     if randomization_fn is None:
         env = brax_training.VmapWrapper(env)
     else:
         from vnl.envs.randomize import RandomizedVmapWrapper
 
         env = RandomizedVmapWrapper(env, randomization_fn, axis_name=axis_name)
+    if vision is not None:
+        env = PixelsWrapper(env, vision)
     env = brax_training.EpisodeWrapper(env, episode_length, action_repeat)
     return AutoResetWrapper(env)

@@ -13,6 +13,7 @@ from vnl import config as config_lib
 from vnl.envs import registry
 from vnl.envs.randomize import RandomizeConfig
 from vnl.errors import VnlError
+from vnl.vision.env import VisionConfig
 
 
 @dataclasses.dataclass(frozen=True)
@@ -84,17 +85,38 @@ class PPOConfig:
 
 @dataclasses.dataclass(frozen=True)
 class NetworkConfig:
-    """MLP sizes of Brax's PPO policy and value networks."""
+    """Brax's PPO policy and value networks: MLP sizes, and with `vision.enabled` the CNN that
+    encodes each `pixels/` observation before the MLP (Brax's `networks_vision`; NatureCNN by
+    default). `cnn_pool` reduces the last feature map: `avg`/`max` over space (C features),
+    `spatial_softmax` (the expected x, y of each channel: 2C features, keeps *where* things are),
+    `none` (flattened)."""
 
     policy_hidden_layer_sizes: tuple[int, ...] = (32, 32, 32, 32)
     value_hidden_layer_sizes: tuple[int, ...] = (256, 256, 256, 256, 256)
     activation: Literal["swish", "relu", "tanh", "elu"] = "swish"
+    cnn_channels: tuple[int, ...] = (32, 64, 64)
+    cnn_kernel_sizes: tuple[int, ...] = (8, 4, 3)
+    cnn_strides: tuple[int, ...] = (4, 2, 1)
+    cnn_max_pool: bool = False  # a 2x2 max-pool after each convolution
+    cnn_pool: Literal["avg", "max", "spatial_softmax", "none"] = "avg"
 
     def validate(self) -> None:
-        for key in ("policy_hidden_layer_sizes", "value_hidden_layer_sizes"):
+        for key in (
+            "policy_hidden_layer_sizes",
+            "value_hidden_layer_sizes",
+            "cnn_channels",
+            "cnn_kernel_sizes",
+            "cnn_strides",
+        ):
             sizes = getattr(self, key)
             if not sizes or any(s < 1 for s in sizes):
                 raise VnlError(f"{key} must be a non-empty list of positive sizes, got {list(sizes)}")
+        n = len(self.cnn_channels)
+        if len(self.cnn_kernel_sizes) != n or len(self.cnn_strides) != n:
+            raise VnlError(
+                f"cnn_channels, cnn_kernel_sizes and cnn_strides need one value per convolution; got "
+                f"{n}, {len(self.cnn_kernel_sizes)} and {len(self.cnn_strides)} values"
+            )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -143,6 +165,7 @@ class TrainConfig:
     network: NetworkConfig = NetworkConfig()
     log: LogConfig = LogConfig()
     randomize: RandomizeConfig = RandomizeConfig()  # domain randomization (vnl.envs.randomize)
+    vision: VisionConfig = VisionConfig()  # pixel observations from an in-graph camera (vnl.vision)
 
     def validate(self) -> None:
         if self.preset not in PRESETS:
@@ -155,6 +178,16 @@ class TrainConfig:
             )
         if self.seed < 0:
             raise VnlError(f"seed must be >= 0, got {self.seed}")
+
+    def make_env(self) -> Any:
+        """The env this config trains: the registered env with `env_config`, seeing through
+        `vision`'s camera when it is enabled (a `VnlError` for an unknown camera)."""
+        env = registry.entry(self.env).factory(self.resolved_env_config())
+        if self.vision.enabled:
+            from vnl.vision.env import VisionEnv
+
+            env = VisionEnv(env, self.vision)
+        return env
 
     def resolved_env_config(self) -> Any:
         """The env's full frozen config with `env_config` applied."""

@@ -42,18 +42,66 @@ class TrainResult:
     params: Any = None  # final (normalizer, policy, value) params; None if interrupted
 
 
-def network_factory(net: NetworkConfig) -> Callable[..., Any]:
-    """Brax's `make_ppo_networks` with the configured sizes and activation."""
+def network_factory(net: NetworkConfig, vision: bool = False) -> Callable[..., Any]:
+    """Brax's `make_ppo_networks` with the configured sizes and activation; with `vision`, Brax's
+    `make_ppo_networks_vision` (a CNN per `pixels/` key, then the MLP on the CNN features and
+    the normalized `state`), taking uint8 images (scaled to [0, 1] inside the networks)."""
     import jax
     from brax.training.agents.ppo import networks as ppo_networks
 
     activation = {"swish": jax.nn.swish, "relu": jax.nn.relu, "tanh": jax.nn.tanh, "elu": jax.nn.elu}[net.activation]
+    if vision:
+        return functools.partial(
+            _vision_networks,
+            policy_hidden_layer_sizes=tuple(net.policy_hidden_layer_sizes),
+            value_hidden_layer_sizes=tuple(net.value_hidden_layer_sizes),
+            activation=activation,
+            policy_obs_key="state",
+            value_obs_key="state",
+            cnn_output_channels=tuple(net.cnn_channels),
+            cnn_kernel_size=tuple(net.cnn_kernel_sizes),
+            cnn_stride=tuple(net.cnn_strides),
+            cnn_max_pool=net.cnn_max_pool,
+            cnn_global_pool=net.cnn_pool,
+        )
     return functools.partial(
         ppo_networks.make_ppo_networks,
         policy_hidden_layer_sizes=tuple(net.policy_hidden_layer_sizes),
         value_hidden_layer_sizes=tuple(net.value_hidden_layer_sizes),
         activation=activation,
     )
+
+
+def _vision_networks(*args: Any, **kwargs: Any) -> Any:
+    """Brax's vision PPO networks, applied to observations whose `pixels/` arrays are uint8."""
+    import contextlib
+
+    import jax
+    from brax.training import networks
+    from brax.training.agents.ppo import networks_vision
+
+    from vnl.train.conv import cpu_convolutions
+
+    nets = networks_vision.make_ppo_networks_vision(*args, **kwargs)
+    # XLA:CPU runs convolution gradients 10-20x slower inside PPO's loops (vnl.train.conv).
+    convolutions = cpu_convolutions if jax.default_backend() == "cpu" else contextlib.nullcontext
+
+    def scaled(net: Any) -> Any:
+        def apply(processor_params: Any, params: Any, obs: dict[str, Any]) -> Any:
+            obs = {k: _unit_pixels(v) if k.startswith("pixels/") else v for k, v in obs.items()}
+            with convolutions():
+                return net.apply(processor_params, params, obs)
+
+        return networks.FeedForwardNetwork(init=net.init, apply=apply)
+
+    return nets.replace(policy_network=scaled(nets.policy_network), value_network=scaled(nets.value_network))
+
+
+def _unit_pixels(x: Any) -> Any:
+    """uint8 [0, 255] -> float32 [0, 1] (float images pass through)."""
+    import jax.numpy as jp
+
+    return x.astype(jp.float32) / 255.0 if x.dtype == jp.uint8 else x
 
 
 def brax_kwargs(config: TrainConfig) -> dict[str, Any]:
@@ -329,7 +377,6 @@ def _run(
 ) -> TrainResult:
     import jax
 
-    from vnl.envs import registry
     from vnl.io import tracking
     from vnl.train import distributed
     from vnl.train.loop import PPOLoop
@@ -338,7 +385,7 @@ def _run(
     if not lead:
         say = _silent
     p = config.ppo
-    env = registry.entry(config.env).factory(config.resolved_env_config())
+    env = config.make_env()
     distributed.on_lead(lambda: check_disk_space(run_dir, config, env))
     epoch_steps = restored[2]["training_steps_per_epoch"] if restored else None
     loop = PPOLoop(env, config, training_steps_per_epoch=epoch_steps)
