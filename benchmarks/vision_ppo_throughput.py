@@ -1,0 +1,65 @@
+"""Training env steps/s of vision PPO next to proprioceptive PPO on the same env, same run.
+
+For each env, vnl's PPO loop (`vnl.train.loop.PPOLoop`, what `vnl train` runs) with the env's
+`cpu` preset is timed blind and with `--vision` (the preset's camera size; `--size` overrides
+it): one warm-up epoch (compiles), then `--epochs` epochs of `--steps-per-epoch` training steps.
+The ratio vision/blind is the cost of seeing: rendering every env's image every step and the
+CNN's forward and backward passes.
+
+    MUJOCO_GL=egl .venv/bin/python benchmarks/vision_ppo_throughput.py [--envs find_target ...]
+        [--size N] [--epochs 2] [--steps-per-epoch 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import time
+
+import jax
+
+from vnl.train import config as train_config
+from vnl.train.loop import PPOLoop
+
+
+def steps_per_second(config: train_config.TrainConfig, epochs: int, steps_per_epoch: int) -> float:
+    """Env steps/s of `epochs` training epochs after a warm-up epoch."""
+    loop = PPOLoop(config.make_env(), config, training_steps_per_epoch=steps_per_epoch)
+    state = loop.init(config.seed)
+    state, _ = loop.epoch(state)  # compiles
+    jax.block_until_ready(state.training.params)
+    t = time.perf_counter()
+    for _ in range(epochs):
+        state, _ = loop.epoch(state)
+    jax.block_until_ready(state.training.params)
+    return epochs * loop.env_steps_per_epoch / (time.perf_counter() - t)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    # ant_run_gaps with vision (64x64, NatureCNN, 256 envs) takes more than 30 minutes on 2 CPU cores.
+    parser.add_argument("--envs", nargs="+", default=["find_target"])
+    parser.add_argument("--size", type=int, help="image width and height (default: the preset's)")
+    parser.add_argument("--epochs", type=int, default=2)
+    parser.add_argument("--steps-per-epoch", type=int, default=2)
+    args = parser.parse_args()
+    rows = []
+    for env in args.envs:
+        blind = train_config.build(env, "cpu")
+        vision = {"enabled": True, **({"width": args.size, "height": args.size} if args.size else {})}
+        seeing = train_config.build(env, "cpu", flags={"vision": vision})
+        b = steps_per_second(blind, args.epochs, args.steps_per_epoch)
+        v = steps_per_second(seeing, args.epochs, args.steps_per_epoch)
+        rows.append((env, seeing, b, v))
+        print(f"{env}: blind {b:,.0f}, vision {v:,.0f} env steps/s", flush=True)
+    print(f"\n{jax.default_backend()} ({platform.processor() or platform.machine()}), {len(jax.devices())} device(s)\n")
+    print("| env | image | CNN channels | num_envs | blind steps/s | vision steps/s | vision/blind |")
+    print("|---|---|---|---:|---:|---:|---:|")
+    for env, c, b, v in rows:
+        image = f"{c.vision.width}x{c.vision.height} {c.vision.mode}"
+        channels = "/".join(map(str, c.network.cnn_channels))
+        print(f"| {env} | {image} | {channels} | {c.ppo.num_envs} | {b:,.0f} | {v:,.0f} | {v / b:.3f} |")
+
+
+if __name__ == "__main__":
+    main()
