@@ -10,6 +10,7 @@ import jax.numpy as jp
 import numpy as np
 
 from vnl.envs.base import Env
+from vnl.errors import VnlError
 from vnl.policy import Policy
 
 
@@ -151,7 +152,7 @@ def _policy_view(env: Env, cam_id: int) -> Any:
         return None
     try:
         name = default_camera(env.mj_model)
-    except Exception:  # noqa: BLE001 - no egocentric camera: nothing to put side by side
+    except VnlError:  # no egocentric camera: nothing to put side by side
         return None
     camera = Camera(env.mj_model, name, skip_unsupported=True)
     return camera if cam_id == camera.camera_id else None

@@ -182,12 +182,7 @@ class TrainConfig:
     def make_env(self) -> Any:
         """The env this config trains: the registered env with `env_config`, seeing through
         `vision`'s camera when it is enabled (a `VnlError` for an unknown camera)."""
-        env = registry.entry(self.env).factory(self.resolved_env_config())
-        if self.vision.enabled:
-            from vnl.vision.env import VisionEnv
-
-            env = VisionEnv(env, self.vision)
-        return env
+        return registry.make(self.env, vision=self.vision, **self.env_config)
 
     def resolved_env_config(self) -> Any:
         """The env's full frozen config with `env_config` applied."""

@@ -83,6 +83,16 @@ def _normalized_spec(observation_size: Any) -> Any:
     return specs.Array((observation_size,), jp.dtype("float32"))
 
 
+def check_devices(config: TrainConfig) -> None:
+    """`VnlError` unless num_envs and batch_size split evenly over the devices of all processes."""
+    p, n = config.ppo, jax.device_count()
+    if p.num_envs % n or p.batch_size % n:
+        raise VnlError(
+            f"ppo.num_envs ({p.num_envs}) and ppo.batch_size ({p.batch_size}) must be multiples of the "
+            f"number of devices ({n})"
+        )
+
+
 def epoch_length(config: TrainConfig) -> int:
     """Training steps per epoch (between two evaluations), as Brax computes it."""
     p = config.ppo
@@ -109,12 +119,7 @@ class PPOLoop:
         self.n_devices = len(self.devices)
         self.process_count = jax.process_count()
         self.process_index = jax.process_index()
-        n = self.n_devices * self.process_count
-        if p.num_envs % n or p.batch_size % n:
-            raise VnlError(
-                f"ppo.num_envs ({p.num_envs}) and ppo.batch_size ({p.batch_size}) must be multiples of the "
-                f"number of devices ({n})"
-            )
+        check_devices(config)
         self.local_envs = p.num_envs // self.process_count
         self.episode_length = config.episode_length()
         train_models, eval_models = self._randomized_models(env)

@@ -358,14 +358,10 @@ def _silent(_: str) -> None:
 
 
 def _check_devices(config: TrainConfig) -> None:
-    import jax
+    """The device check of the PPO loop, before the env is built."""
+    from vnl.train.loop import check_devices
 
-    devices = jax.device_count()  # over all processes
-    if config.ppo.num_envs % devices or config.ppo.batch_size % devices:
-        raise VnlError(
-            f"ppo.num_envs ({config.ppo.num_envs}) and ppo.batch_size ({config.ppo.batch_size}) "
-            f"must be multiples of the number of devices ({devices})"
-        )
+    check_devices(config)
 
 
 def _run(

@@ -58,14 +58,10 @@ class VisionConfig:
             raise VnlError(f"chunk must be >= 1, got {self.chunk}")
 
 
-def camera_names(model: mujoco.MjModel) -> list[str]:
-    """The model's named cameras."""
-    names = (mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_CAMERA, i) for i in range(model.ncam))
-    return [n for n in names if n]
-
-
 def default_camera(model: mujoco.MjModel) -> str:
     """The model's egocentric camera; a `VnlError` listing the cameras when there is none."""
+    from vnl.io.video import camera_names
+
     names = camera_names(model)
     for name in names:
         if name == "egocentric" or name.endswith("/egocentric"):
