@@ -10,7 +10,9 @@ import pytest
 from mujoco import mjx
 
 import vnl
+from vnl.arenas import gaps as gaps_arena
 from vnl.errors import VnlError
+from vnl.tasks.base import spawn_height
 from vnl.vision.camera import FAR, Camera
 
 pytestmark = pytest.mark.xdist_group("vision")
@@ -88,8 +90,12 @@ def test_primitives_match_mujocos_renderer():
 
 def test_image_follows_the_state_inside_jit_and_vmap():
     m, mx, cam = scene()
-    d = mjx.forward(mx, mjx.make_data(mx))
-    moved = mjx.forward(mx, d.replace(qpos=d.qpos.at[:3].set(jp.array([0.2, -0.8, 0.6]))))
+    host = mujoco.MjData(m)
+    mujoco.mj_forward(m, host)
+    d = mjx.put_data(m, host)
+    host.qpos[:3] = 0.2, -0.8, 0.6
+    mujoco.mj_forward(m, host)
+    moved = mjx.put_data(m, host)
     batch = jax.tree.map(lambda a, b: jp.stack([a, b]), d, moved)
     rgb, depth, geom = jax.jit(jax.vmap(cam.render))(batch)
     assert (geom[0] != geom[1]).mean() > 0.01 and not np.array_equal(rgb[0], rgb[1])
@@ -97,38 +103,91 @@ def test_image_follows_the_state_inside_jit_and_vmap():
         np.testing.assert_array_equal(geom[i], jax.jit(cam.render)(state)[2])
     np.testing.assert_array_equal(jax.jit(functools.partial(cam.render_batch, chunk=1))(batch)[2], geom)
     # The moved box's pixels agree with MuJoCo's renderer for the moved state too.
-    host = mujoco.MjData(m)
-    host.qpos[:] = np.asarray(moved.qpos)
-    mujoco.mj_forward(m, host)
     assert_matches(depth[1], geom[1], *reference(m, host, "cam", 64, 48), min_agreement=0.98)
+
+
+def look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """The quaternion of a MuJoCo camera at `eye` looking at `target` (it looks along its -z)."""
+    forward = (target - eye) / np.linalg.norm(target - eye)
+    up = np.array([0.0, 0.0, 1.0]) if abs(forward[2]) < 0.99 else np.array([0.0, 1.0, 0.0])
+    x = np.cross(forward, up) / np.linalg.norm(np.cross(forward, up))
+    quat = np.zeros(4)
+    mujoco.mju_mat2Quat(quat, np.stack([x, np.cross(x, forward), -forward], 1).reshape(-1))
+    return quat
+
+
+def test_every_primitive_from_every_side_and_down_its_axis_matches_mujocos_renderer():
+    # The camera circles the scene (low and high), then looks down the capsule's and the
+    # cylinder's axis from beyond their upper ends: rays parallel to an axis, caps seen end-on.
+    m = mujoco.MjModel.from_xml_string(SCENE)
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    centre = np.array([0.0, 0.0, 0.3])
+    poses = [
+        (centre + 2.2 * np.array([np.cos(az) * np.cos(el), np.sin(az) * np.cos(el), np.sin(el)]), centre)
+        for az in np.linspace(0, 2 * np.pi, 6, endpoint=False)
+        for el in (0.3, 1.2)
+    ]
+    for name in ("capsule", "cylinder"):
+        g = m.geom(name).id
+        axis = d.geom_xmat[g].reshape(3, 3)[:, 2]
+        axis = axis if axis[2] > 0 else -axis
+        poses += [(d.geom_xpos[g] + 0.8 * axis + offset, d.geom_xpos[g]) for offset in (0.0, 0.03)]
+    cam = Camera(m, "cam", 64, 48)
+    render = jax.jit(cam.render)
+    for eye, target in poses:
+        m.cam_pos[0], m.cam_quat[0] = eye, look_at(eye, target)
+        mujoco.mj_forward(m, d)
+        _, depth, geom = render(mjx.put_data(m, d))
+        assert_matches(depth, geom, *reference(m, d, "cam", 64, 48), min_agreement=0.98)
+
+
+def test_rodent_egocentric_camera_sees_past_its_own_head_as_mujoco_does():
+    # The rat's camera sits inside its skull's collision geoms; MuJoCo's renderer clips them at
+    # its near plane (znear x extent), and so must the in-graph camera.
+    env = vnl.make("rodent_run_gaps")
+    d = mujoco.MjData(env.mj_model)
+    corridor = env.config.corridor  # an episode's platforms around the rat, without compiling reset
+    layout = gaps_arena.sample_layout(jax.random.PRNGKey(1), corridor)
+    d.mocap_pos[:] = np.asarray(gaps_arena.place_window(layout, jp.float32(d.qpos[0]), corridor))
+    mujoco.mj_forward(env.mj_model, d)
+    cam = Camera(env.mj_model, "walker/egocentric", 64, 48)
+    _, depth, geom = jax.jit(cam.render)(mjx.put_data(env.mj_model, d))
+    ref_depth, ref_geom = reference(env.mj_model, d, "walker/egocentric", 64, 48)
+    assert_matches(depth, geom, ref_depth, ref_geom, min_agreement=0.95)
+    names = {mujoco.mj_id2name(env.mj_model, mujoco.mjtObj.mjOBJ_GEOM, i) for i in np.unique(np.asarray(geom))}
+    assert any(n and n.startswith("platform") for n in names) and not any(n and "skull" in n for n in names)
 
 
 @functools.cache
 def gaps():
     env = vnl.make("ant_run_gaps")
     cam = Camera(env.mj_model, "walker/egocentric", 64, 64)
-    return env, cam, jax.jit(env.reset), jax.jit(cam.render)
+    return env, cam, jax.jit(cam.render)
 
 
-def host_data(env, data):
+def corridor_episode(env, key: int, forward: float = 0.0) -> mujoco.MjData:
+    """An episode's platforms around the walker at its spawn point (+ `forward` m), on the host
+    (no reset to compile: the camera is what is tested)."""
+    cfg = env.config
+    x = cfg.spawn_x + forward
+    layout = gaps_arena.sample_layout(jax.random.PRNGKey(key), cfg.corridor)
     d = mujoco.MjData(env.mj_model)
-    d.qpos[:] = np.asarray(data.qpos)
-    d.mocap_pos[:] = np.asarray(data.mocap_pos)
-    d.mocap_quat[:] = np.asarray(data.mocap_quat)
+    d.mocap_pos[:] = np.asarray(gaps_arena.place_window(layout, jp.float32(cfg.spawn_x), cfg.corridor))
+    d.qpos[:3] = x, 0.0, spawn_height(env.mj_model, x, 0.0, mocap_pos=d.mocap_pos)
     mujoco.mj_forward(env.mj_model, d)
     return d
 
 
 def test_ant_egocentric_camera_sees_the_corridor_it_is_in():
-    env, cam, reset, render = gaps()
-    s0, s1 = reset(jax.random.PRNGKey(0)), reset(jax.random.PRNGKey(1))
-    _, depth0, geom0 = render(s0.data)
-    assert_matches(depth0, geom0, *reference(env.mj_model, host_data(env, s0.data), "walker/egocentric", 64, 64), 0.95)
+    env, cam, render = gaps()
+    d0, d1, ahead = corridor_episode(env, 0), corridor_episode(env, 1), corridor_episode(env, 0, forward=0.3)
+    _, depth0, geom0 = render(mjx.put_data(env.mj_model, d0))
+    assert_matches(depth0, geom0, *reference(env.mj_model, d0, "walker/egocentric", 64, 64), 0.95)
     assert len(np.unique(np.asarray(geom0))) > 3  # platforms in view, not just the sky
     # Another episode's layout gives another image; so does moving the walker forward.
-    assert not np.array_equal(render(s1.data)[2], geom0)
-    forward = mjx.forward(env.mjx_model, s0.data.replace(qpos=s0.data.qpos.at[0].add(0.3)))
-    assert (np.asarray(render(forward)[1]) != np.asarray(depth0)).mean() > 0.05
+    assert not np.array_equal(render(mjx.put_data(env.mj_model, d1))[2], geom0)
+    assert (np.asarray(render(mjx.put_data(env.mj_model, ahead))[1]) != np.asarray(depth0)).mean() > 0.05
 
 
 def test_unsupported_geoms_and_bad_cameras_are_clear_errors():

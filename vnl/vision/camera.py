@@ -7,10 +7,14 @@ OpenGL renderer runs outside the trace; the notebooks called it on a fresh MjDat
 saw the same picture every step.)
 
 All rays of an image are intersected with all visible geoms of a type in one vectorized pass
-(pixels × geoms arrays, float32), then the nearest hit per pixel wins. Supported geom types: plane,
-sphere, capsule, ellipsoid, cylinder, box — exactly, as MuJoCo draws them. Heightfields and meshes
-are not ray cast: a visible one is an error at build time unless `skip_unsupported=True` leaves it
-out of the image (stated in `Camera.skipped`).
+((geoms, pixels) float32 arrays, one per axis, pixels minor so that they fill the SIMD lanes), then
+the nearest hit per pixel wins, and only its surface normal is computed for the shading. Supported
+geom types: plane, sphere, capsule, ellipsoid, cylinder, box — exactly, as MuJoCo draws them. Only
+front faces are seen: a ray that starts inside a geom passes through it. Hits nearer than the
+model's near clipping plane (`vis.map.znear` × extent) or beyond its far plane are dropped, as
+`mujoco.Renderer` does — the rat's egocentric camera sits inside its skull's geoms and sees past
+them. Heightfields and meshes are not ray cast: a visible one is an error at build time unless
+`skip_unsupported=True` leaves it out of the image (stated in `Camera.skipped`).
 
 Conventions are MuJoCo's: a camera looks along its frame's -z with +y up, `fovy` is the vertical
 field of view, row 0 of an image is its top, and depth is the distance along the viewing axis
@@ -35,6 +39,7 @@ VISIBLE_GROUPS = (0, 1, 2)  # the groups MuJoCo's renderer shows by default
 AMBIENT = 0.3  # shading: colour * (AMBIENT + (1 - AMBIENT) * |cos(angle to the ray)|)
 BACKGROUND = (0.0, 0.0, 0.0)
 FAR = 1e4  # depth reported where a ray hits nothing (metres)
+CHUNK_PIXELS = 2**16  # pixels rendered at a time by render_batch
 
 
 @dataclasses.dataclass(frozen=True)
@@ -91,6 +96,10 @@ class Camera:
         visible &= ~unsupported
         of_type = {int(t): visible & (m.geom_type == t) for t in SUPPORTED}
         self._geoms = {t: _Geoms(np.nonzero(sel)[0], m.geom_size[sel]) for t, sel in of_type.items() if sel.any()}
+        # All of them in one list (type by type): the slot of a pixel's nearest geom indexes it.
+        self._ids = np.concatenate([g.ids for g in self._geoms.values()] + [np.zeros(0, int)]).astype(np.int32)
+        self._type = m.geom_type[self._ids].astype(np.int32)
+        self._size = m.geom_size[self._ids].astype(np.float32)
         self._rgb = np.concatenate([rgba[:, :3], [BACKGROUND]]).astype(np.float32)  # index -1 = background
         # Unit ray directions in the camera frame, (height * width, 3), row 0 at the top.
         half_h = np.tan(np.deg2rad(m.cam_fovy[self.camera_id]) / 2)
@@ -100,6 +109,10 @@ class Camera:
         vv, uu = np.meshgrid(v, u, indexing="ij")
         dirs = np.stack([uu, vv, -np.ones_like(uu)], -1).reshape(-1, 3)
         self._cos = (1 / np.linalg.norm(dirs, axis=-1)).astype(np.float32)  # depth = distance * cos
+        # MuJoCo's renderer clips depths outside [znear, zfar] x the model's extent: a camera
+        # placed inside its walker's head sees past the head's geoms, as in `mujoco.Renderer`.
+        self.near = float(m.vis.map.znear * m.stat.extent)
+        self.far = float(m.vis.map.zfar * m.stat.extent)
         self._dirs = (dirs * self._cos[:, None]).astype(np.float32)
 
     @property
@@ -111,151 +124,173 @@ class Camera:
         """(rgb, depth, geom) for one state: uint8 (H, W, 3), float32 (H, W) metres (FAR where
         nothing is hit), int32 (H, W) geom ids (-1 = nothing). Vmap it over a batch of states, or
         use `render_batch` (faster on a CPU)."""
+        if not self._ids.size:  # nothing visible
+            rgb = jp.broadcast_to(jp.asarray(self._rgb[-1] * 255, jp.uint8), (self.height, self.width, 3))
+            return rgb, jp.full((self.height, self.width), FAR), jp.full((self.height, self.width), -1, jp.int32)
         origin = data.cam_xpos[self.camera_id].astype(jp.float32)
-        rays = jp.asarray(self._dirs) @ data.cam_xmat[self.camera_id].astype(jp.float32).T  # (P, 3) world
-        best = jp.full(rays.shape[0], jp.inf, jp.float32)
-        best_id = jp.full(rays.shape[0], -1, jp.int32)
-        normal = jp.zeros_like(rays)
+        rays = data.cam_xmat[self.camera_id].astype(jp.float32) @ jp.asarray(self._dirs).T  # (3, P) world
+        pos = data.geom_xpos[self._ids].astype(jp.float32)  # (N, 3)
+        mat = data.geom_xmat[self._ids].astype(jp.float32)  # (N, 3, 3)
+        rel = origin - pos
+        pnt = jp.einsum("nji,nj->ni", mat, rel)  # ray origin in each geom's frame (N, 3)
+        near, far = jp.asarray(self.near / self._cos), jp.asarray(self.far / self._cos)  # along each ray (P,)
+        best = jp.full(rays.shape[1], jp.inf, jp.float32)
+        slot = jp.zeros(rays.shape[1], jp.int32)  # index into self._ids of the nearest geom
+        start = 0
         for gtype, geoms in self._geoms.items():
-            pos = data.geom_xpos[geoms.ids].astype(jp.float32)  # (n, 3)
-            mat = data.geom_xmat[geoms.ids].astype(jp.float32)  # (n, 3, 3)
-            pnt = jp.einsum("nji,nj->ni", mat, origin - pos)  # ray origin in each geom's frame (n, 3)
-            vec = jp.einsum("nji,pj->pni", mat, rays)  # ray directions in each geom's frame (P, n, 3)
+            sl = slice(start, start + geoms.ids.size)
+            # Ray directions in each geom's frame, one (n, P) array per axis, and their dot
+            # product with the origin (the same in any frame). Elementwise, so XLA fuses them
+            # into the intersection instead of materializing (n, P, 3).
+            vec = tuple(_dot(mat[sl, :, i], rays) for i in range(3))
             size = jp.asarray(geoms.size, jp.float32)
-            dist = _INTERSECT[gtype](size, pnt[None], vec)  # (P, n)
-            k = jp.argmin(dist, axis=1)  # the nearest geom of this type per pixel
-            d = jp.take_along_axis(dist, k[:, None], 1)[:, 0]
-            v = jp.take_along_axis(vec, k[:, None, None], 1)[:, 0]
-            n_local = _NORMAL[gtype](size[k], pnt[k], v, _finite(d))  # only for that geom: (P, 3)
-            n_world = jp.einsum("pij,pj->pi", mat[k], n_local)
+            dist = _INTERSECT[gtype](_cols(size), _cols(pnt[sl]), vec, _dot(rel[sl], rays))  # (n, P)
+            dist = jp.where((dist >= near) & (dist <= far), dist, jp.inf)
+            k = jp.argmin(dist, axis=0)  # the nearest geom of this type per pixel
+            d = jp.take_along_axis(dist, k[None], 0)[0]
             closer = d < best
             best = jp.where(closer, d, best)
-            best_id = jp.where(closer, jp.asarray(geoms.ids, jp.int32)[k], best_id)
-            normal = jp.where(closer[:, None], n_world, normal)
+            slot = jp.where(closer, start + k, slot)
+            start += geoms.ids.size
         hit = jp.isfinite(best)
-        shade = AMBIENT + (1 - AMBIENT) * jp.abs(jp.sum(normal * rays, -1)) / jp.maximum(
-            jp.linalg.norm(normal, axis=-1), 1e-9
-        )
-        color = jp.asarray(self._rgb)[best_id] * jp.where(hit, shade, 1.0)[:, None]
+        # Shading needs the surface normal of the nearest geom only: its hit point in its frame.
+        mat_k = mat[slot]  # (P, 3, 3)
+        local = jp.einsum("pji,pj->pi", mat_k, (jp.where(hit, best, 0) * rays).T + origin - pos[slot])
+        normal = _normal(jp.asarray(self._type)[slot], jp.asarray(self._size)[slot], local)  # (P, 3)
+        cos = jp.abs(jp.einsum("pi,pji,jp->p", normal, mat_k, rays)) / jp.maximum(jp.linalg.norm(normal, axis=-1), 1e-9)
+        geom = jp.where(hit, jp.asarray(self._ids)[slot], -1)
+        color = jp.asarray(self._rgb)[geom] * jp.where(hit, AMBIENT + (1 - AMBIENT) * cos, 1.0)[:, None]
         rgb = jp.clip(jp.round(color * 255), 0, 255).astype(jp.uint8).reshape(self.height, self.width, 3)
         depth = jp.where(hit, best * jp.asarray(self._cos), FAR).reshape(self.height, self.width)
-        return rgb, depth, best_id.reshape(self.height, self.width)
+        return rgb, depth, geom.reshape(self.height, self.width)
 
-    def render_batch(self, data: mjx.Data, chunk: int = 4) -> tuple[jax.Array, jax.Array, jax.Array]:
+    def render_batch(self, data: mjx.Data, chunk: int | None = None) -> tuple[jax.Array, jax.Array, jax.Array]:
         """`render` over a batch of states (leading axis B), `chunk` images at a time, so the
-        working set stays in cache (on a 2-core CPU, 64x64 in the ant's gaps corridor at B = 64:
-        2.7x the images/s of `vmap(render)`). Shapes as `render` with a leading B."""
+        working set stays in cache. The default renders about 65,536 pixels at a time (16 images
+        at 64x64), the fastest setting measured on a 2-core CPU (benchmarks/camera_throughput.py).
+        Shapes as `render` with a leading B."""
+        chunk = chunk or max(1, CHUNK_PIXELS // (self.width * self.height))
         return jax.lax.map(self.render, data, batch_size=chunk)
 
 
 # --- ray / primitive intersections in the geom's frame -------------------------------------------
-# Each takes size (n, 3), ray origins (1, n, 3) and unit directions (P, n, 3) and returns the
-# distance to the first hit in front of the origin (inf if none), (P, n). The normals (not
-# normalized) are computed afterwards for the nearest geom only: size, origin, direction (P, 3),
-# distance (P,) -> (P, 3).
+# Each takes the sizes and the ray origin in each geom's frame as (n, 1) columns, the unit ray
+# directions in each geom's frame as (n, P) arrays per axis, and w = direction . origin (n, P),
+# and returns the distance to the first front-face hit in front of the origin, (n, P), inf if
+# none. A ray that starts inside a geom does not see it (as with back-face culling). The pixel
+# axis P is the minor one: it vectorizes, where a (P, n, 3) layout leaves SIMD lanes idle. The
+# normals (not normalized) are computed afterwards for the nearest geom only: size, origin,
+# direction (P, 3), distance (P,) -> (P, 3).
+
+Cols = tuple[jax.Array, jax.Array, jax.Array]
 
 
-def _first_root(a: jax.Array, b: jax.Array, c: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """Both roots of a x² + 2 b x + c = 0 that are >= 0 (inf otherwise), nearest first."""
+def _cols(x: jax.Array) -> Cols:
+    """(n, 3) -> three (n, 1) columns."""
+    return x[:, 0, None], x[:, 1, None], x[:, 2, None]
+
+
+def _dot(a: jax.Array, rays: jax.Array) -> jax.Array:
+    """(n, 3) . (3, P) -> (n, P), written elementwise so that it fuses with its consumer."""
+    return a[:, 0, None] * rays[0] + a[:, 1, None] * rays[1] + a[:, 2, None] * rays[2]
+
+
+def _safe(x: jax.Array) -> jax.Array:
+    return jp.where(jp.abs(x) < 1e-12, 1e-12, x)
+
+
+def _entry(a: jax.Array, b: jax.Array, c: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """The smaller root of a x² + 2 b x + c = 0 (a > 0), and whether there is a root."""
     disc = b * b - a * c
-    sq = jp.sqrt(jp.maximum(disc, 0))
-    a = jp.where(jp.abs(a) < 1e-12, 1e-12, a)
-    x0, x1 = (-b - sq) / a, (-b + sq) / a
-    bad = disc < 0
-    x0 = jp.where(bad | (x0 < 0), jp.inf, x0)
-    x1 = jp.where(bad | (x1 < 0), jp.inf, x1)
-    return x0, x1
+    return (-b - jp.sqrt(jp.maximum(disc, 0))) / a, disc >= 0
 
 
-def _plane(size: jax.Array, pnt: jax.Array, vec: jax.Array) -> jax.Array:
-    x = -pnt[..., 2] / jp.where(jp.abs(vec[..., 2]) < 1e-12, -1e-12, vec[..., 2])
-    p = pnt[..., :2] + x[..., None] * vec[..., :2]
-    inside = jp.all((size[:, :2] <= 0) | (jp.abs(p) <= size[:, :2]), -1)
-    valid = (vec[..., 2] < 0) & (x >= 0) & inside  # front face only, as MuJoCo
+def _plane(size: Cols, pnt: Cols, vec: Cols, w: jax.Array) -> jax.Array:
+    x = -pnt[2] / jp.where(jp.abs(vec[2]) < 1e-12, -1e-12, vec[2])
+    inside = [(size[i] <= 0) | (jp.abs(pnt[i] + x * vec[i]) <= size[i]) for i in (0, 1)]
+    valid = (vec[2] < 0) & (x >= 0) & inside[0] & inside[1]  # front face only, as MuJoCo
     return jp.where(valid, x, jp.inf)
 
 
-def _sphere(size: jax.Array, pnt: jax.Array, vec: jax.Array) -> jax.Array:
-    x0, x1 = _first_root(jp.ones(vec.shape[:-1]), jp.sum(vec * pnt, -1), jp.sum(pnt * pnt, -1) - size[:, 0] ** 2)
-    return jp.minimum(x0, x1)
+def _sphere(size: Cols, pnt: Cols, vec: Cols, w: jax.Array) -> jax.Array:
+    x, ok = _entry(1.0, w, pnt[0] ** 2 + pnt[1] ** 2 + pnt[2] ** 2 - size[0] ** 2)
+    return jp.where(ok & (x >= 0), x, jp.inf)
 
 
-def _ellipsoid(size: jax.Array, pnt: jax.Array, vec: jax.Array) -> jax.Array:
-    s = 1 / size**2
-    x0, x1 = _first_root(jp.sum(s * vec * vec, -1), jp.sum(s * vec * pnt, -1), jp.sum(s * pnt * pnt, -1) - 1)
-    return jp.minimum(x0, x1)
+def _ellipsoid(size: Cols, pnt: Cols, vec: Cols, w: jax.Array) -> jax.Array:
+    s = [1 / size[i] ** 2 for i in range(3)]
+    a = s[0] * vec[0] ** 2 + s[1] * vec[1] ** 2 + s[2] * vec[2] ** 2
+    b = s[0] * vec[0] * pnt[0] + s[1] * vec[1] * pnt[1] + s[2] * vec[2] * pnt[2]
+    x, ok = _entry(a, b, s[0] * pnt[0] ** 2 + s[1] * pnt[1] ** 2 + s[2] * pnt[2] ** 2 - 1)
+    return jp.where(ok & (x >= 0), x, jp.inf)
 
 
-def _side(size: jax.Array, pnt: jax.Array, vec: jax.Array) -> jax.Array:
-    """Hits of the infinite cylinder x² + y² = r² between z = ±half-length."""
-    vx, px = vec[..., :2], pnt[..., :2]
-    x0, x1 = _first_root(jp.sum(vx * vx, -1), jp.sum(vx * px, -1), jp.sum(px * px, -1) - size[:, 0] ** 2)
-    ok = lambda x: jp.abs(pnt[..., 2] + _finite(x) * vec[..., 2]) <= size[:, 1]  # noqa: E731
-    return jp.minimum(jp.where(ok(x0), x0, jp.inf), jp.where(ok(x1), x1, jp.inf))
+def _side(size: Cols, pnt: Cols, vec: Cols, w: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """Entry into the infinite cylinder x² + y² = r²: distance, whether the ray meets it (or,
+    parallel to the axis, runs inside it), and whether it is parallel."""
+    a = 1 - vec[2] * vec[2]  # vx² + vy²
+    parallel = a < 1e-6
+    c = pnt[0] ** 2 + pnt[1] ** 2 - size[0] ** 2
+    x, ok = _entry(jp.where(parallel, 1.0, a), w - vec[2] * pnt[2], c)
+    return x, jp.where(parallel, c <= 0, ok), parallel
 
 
-def _capsule(size: jax.Array, pnt: jax.Array, vec: jax.Array) -> jax.Array:
-    x = _side(size, pnt, vec)
-    for sign in (1.0, -1.0):  # the two hemispherical caps
-        centre = jp.stack([jp.zeros_like(size[:, 1]), jp.zeros_like(size[:, 1]), sign * size[:, 1]], -1)
-        dif = pnt - centre
-        c0, c1 = _first_root(jp.ones(vec.shape[:-1]), jp.sum(vec * dif, -1), jp.sum(dif * dif, -1) - size[:, 0] ** 2)
-        for c in (c0, c1):
-            on_cap = sign * (pnt[..., 2] + _finite(c) * vec[..., 2]) >= size[:, 1]
-            x = jp.where(on_cap & (c < x), c, x)
-    return x
+def _capsule(size: Cols, pnt: Cols, vec: Cols, w: jax.Array) -> jax.Array:
+    r, h = size[0], size[1]
+    x, meets, parallel = _side(size, pnt, vec, w)
+    side = ~parallel & meets & (x >= 0) & (jp.abs(pnt[2] + x * vec[2]) <= h)
+    # Otherwise the ray can only enter through the cap at the end where it enters the cylinder.
+    end = jp.where(parallel, pnt[2], pnt[2] + jp.maximum(x, 0) * vec[2])
+    sign = jp.where(end >= 0, 1.0, -1.0)
+    cap, on = _entry(1.0, w - sign * h * vec[2], pnt[0] ** 2 + pnt[1] ** 2 + (pnt[2] - sign * h) ** 2 - r * r)
+    inside = (pnt[0] ** 2 + pnt[1] ** 2 <= r * r) & (jp.abs(pnt[2]) <= h)  # the origin, in the cylinder part
+    cap_ok = meets & on & ~inside & (cap >= 0) & (sign * (pnt[2] + cap * vec[2]) >= h)
+    return jp.where(side, x, jp.where(cap_ok, cap, jp.inf))
 
 
-def _cylinder(size: jax.Array, pnt: jax.Array, vec: jax.Array) -> jax.Array:
-    x = _side(size, pnt, vec)
-    cap = jp.inf
-    for sign in (1.0, -1.0):  # the two flat discs
-        vz = jp.where(jp.abs(vec[..., 2]) < 1e-12, 1e-12, vec[..., 2])
-        c = (sign * size[:, 1] - pnt[..., 2]) / vz
-        p = pnt[..., :2] + c[..., None] * vec[..., :2]
-        ok = (c >= 0) & (jp.sum(p * p, -1) <= size[:, 0] ** 2)
-        cap = jp.minimum(cap, jp.where(ok, c, jp.inf))
-    return jp.minimum(x, cap)
+def _cylinder(size: Cols, pnt: Cols, vec: Cols, w: jax.Array) -> jax.Array:
+    r, h = size[0], size[1]
+    x, meets, parallel = _side(size, pnt, vec, w)
+    side = ~parallel & meets & (x >= 0) & (jp.abs(pnt[2] + x * vec[2]) <= h)
+    # The flat end facing the origin, if the origin is beyond it.
+    sign = jp.where(pnt[2] >= 0, 1.0, -1.0)
+    cap = (sign * h - pnt[2]) / _safe(vec[2])
+    on = (pnt[0] + cap * vec[0]) ** 2 + (pnt[1] + cap * vec[1]) ** 2 <= r * r
+    cap_ok = (jp.abs(pnt[2]) > h) & (cap >= 0) & on
+    return jp.where(side, x, jp.where(cap_ok, cap, jp.inf))
 
 
-def _box(size: jax.Array, pnt: jax.Array, vec: jax.Array) -> jax.Array:
-    inv = 1 / jp.where(jp.abs(vec) < 1e-12, 1e-12, vec)  # one division, two multiplications
-    t1, t2 = (-size - pnt) * inv, (size - pnt) * inv
-    near = jp.max(jp.minimum(t1, t2), -1)
-    far = jp.min(jp.maximum(t1, t2), -1)
-    valid = (near <= far) & (far >= 0)
-    return jp.where(valid, jp.where(near >= 0, near, far), jp.inf)  # from inside: the exit face
+def _box(size: Cols, pnt: Cols, vec: Cols, w: jax.Array) -> jax.Array:
+    near, far = -jp.inf, jp.inf
+    for i in range(3):
+        inv = 1 / _safe(vec[i])  # one division, two multiplications
+        t1, t2 = (-size[i] - pnt[i]) * inv, (size[i] - pnt[i]) * inv
+        near, far = jp.maximum(near, jp.minimum(t1, t2)), jp.minimum(far, jp.maximum(t1, t2))
+    return jp.where((near <= far) & (near >= 0), near, jp.inf)
 
 
-def _hit(pnt: jax.Array, vec: jax.Array, x: jax.Array) -> jax.Array:
-    return pnt + x[..., None] * vec
-
-
-def _zero_z(p: jax.Array) -> jax.Array:
-    return p * jp.array([1.0, 1.0, 0.0])
-
-
-def _normal_capsule(size: jax.Array, pnt: jax.Array, vec: jax.Array, x: jax.Array) -> jax.Array:
-    hit = _hit(pnt, vec, x)
-    axis = jp.clip(hit[..., 2], -size[..., 1], size[..., 1])
-    return hit - jp.stack([jp.zeros_like(axis), jp.zeros_like(axis), axis], -1)
-
-
-def _normal_cylinder(size: jax.Array, pnt: jax.Array, vec: jax.Array, x: jax.Array) -> jax.Array:
-    hit = _hit(pnt, vec, x)
-    on_cap = jp.abs(hit[..., 2]) / size[..., 1] > jp.linalg.norm(hit[..., :2], axis=-1) / size[..., 0]
-    cap = jp.stack([jp.zeros_like(x), jp.zeros_like(x), jp.sign(hit[..., 2])], -1)
-    return jp.where(on_cap[..., None], cap, _zero_z(hit))
-
-
-def _normal_box(size: jax.Array, pnt: jax.Array, vec: jax.Array, x: jax.Array) -> jax.Array:
-    hit = _hit(pnt, vec, x) / size
-    face = jp.argmax(jp.abs(hit), -1)
-    return jax.nn.one_hot(face, 3) * jp.sign(hit)
-
-
-def _finite(x: jax.Array) -> jax.Array:
-    return jp.where(jp.isfinite(x), x, 0.0)
+def _normal(gtype: jax.Array, size: jax.Array, hit: jax.Array) -> jax.Array:
+    """Outward normals (not normalized), (P, 3), of geoms of types `gtype` (P,) and sizes (P, 3)
+    at points `hit` (P, 3) on their surface, in the geom's frame."""
+    z = hit[:, 2:]
+    zero = jp.zeros_like(z)
+    axis = jp.concatenate([zero, zero, jp.clip(z, -size[:, 1:2], size[:, 1:2])], -1)
+    on_cap = jp.abs(z) / size[:, 1:2] > jp.linalg.norm(hit[:, :2], axis=-1, keepdims=True) / size[:, :1]
+    cylinder = jp.where(on_cap, jp.concatenate([zero, zero, jp.sign(z)], -1), hit * jp.array([1.0, 1.0, 0.0]))
+    scaled = hit / jp.where(size > 0, size, 1.0)
+    box = jax.nn.one_hot(jp.argmax(jp.abs(scaled), -1), 3) * jp.sign(scaled)
+    by_type = {
+        G.mjGEOM_PLANE: jp.broadcast_to(jp.array([0.0, 0.0, 1.0]), hit.shape),
+        G.mjGEOM_SPHERE: hit,
+        G.mjGEOM_CAPSULE: hit - axis,
+        G.mjGEOM_ELLIPSOID: scaled / jp.where(size > 0, size, 1.0),
+        G.mjGEOM_CYLINDER: cylinder,
+        G.mjGEOM_BOX: box,
+    }
+    normal = hit
+    for t, n in by_type.items():
+        normal = jp.where((gtype == int(t))[:, None], n, normal)
+    return normal
 
 
 _INTERSECT = {
@@ -265,12 +300,4 @@ _INTERSECT = {
     int(G.mjGEOM_ELLIPSOID): _ellipsoid,
     int(G.mjGEOM_CYLINDER): _cylinder,
     int(G.mjGEOM_BOX): _box,
-}
-_NORMAL = {
-    int(G.mjGEOM_PLANE): lambda size, pnt, vec, x: jp.broadcast_to(jp.array([0.0, 0.0, 1.0]), vec.shape),
-    int(G.mjGEOM_SPHERE): lambda size, pnt, vec, x: _hit(pnt, vec, x),
-    int(G.mjGEOM_CAPSULE): _normal_capsule,
-    int(G.mjGEOM_ELLIPSOID): lambda size, pnt, vec, x: _hit(pnt, vec, x) / size**2,
-    int(G.mjGEOM_CYLINDER): _normal_cylinder,
-    int(G.mjGEOM_BOX): _normal_box,
 }

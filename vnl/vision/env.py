@@ -46,7 +46,7 @@ class VisionConfig:
     height: int = 64
     mode: Literal["rgb", "depth", "rgbd"] = "rgb"
     depth_max: float = 10.0  # metres mapped to 255 in depth images
-    chunk: int = 4  # images rendered at a time in training (Camera.render_batch)
+    chunk: int | None = None  # images rendered at a time in training (None: Camera.render_batch's default)
 
     def validate(self) -> None:
         for key in ("width", "height"):
@@ -54,7 +54,7 @@ class VisionConfig:
                 raise VnlError(f"{key} must be in [8, 512] pixels, got {getattr(self, key)}")
         if not self.depth_max > 0:
             raise VnlError(f"depth_max must be > 0 metres, got {self.depth_max}")
-        if self.chunk < 1:
+        if self.chunk is not None and self.chunk < 1:
             raise VnlError(f"chunk must be >= 1, got {self.chunk}")
 
 
