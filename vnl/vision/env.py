@@ -79,7 +79,7 @@ class VisionEnv(Env):
       config: the camera settings (`enabled` is not read: wrapping means vision is on).
 
     Raises `VnlError` (before anything is compiled) for an unknown camera or geoms the camera
-    cannot draw (heightfields, meshes).
+    cannot draw (meshes).
     """
 
     def __init__(self, env: Env, config: VisionConfig) -> None:
