@@ -25,7 +25,9 @@ def run(*args, timeout=900):
     return subprocess.run([*VNL, *map(str, args)], capture_output=True, text=True, timeout=timeout, cwd=ROOT)
 
 
-@pytest.fixture(scope="module")
+# Session scope: under xdist's loadgroup other modules' tests can run between this module's on
+# the same worker, and a module fixture was torn down and trained again (206 s twice in CI).
+@pytest.fixture(scope="session")
 def trained_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("cli") / "ant"
     p = run("train", "ant_run", "--preset", "tiny", "--out", out, "--set", "log.video_seconds=0.5")
