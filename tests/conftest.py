@@ -13,6 +13,26 @@ if "MUJOCO_GL" not in os.environ:
         os.environ["MUJOCO_GL"] = "osmesa"
 
 
+@pytest.fixture(scope="session", autouse=True)
+def xdist_groups_hold(request):
+    """Errors every test when `--dist loadgroup` would not keep an `xdist_group` on one worker.
+
+    xdist groups a test by appending "@<group>" to its node id on the worker. pytest 9.2 builds
+    node ids from a structured id and ignores that, so groups were spread over both workers and
+    their shared compiles and trained runs were done twice (pytest is pinned to 9.1.1 for this).
+    Session-scoped and autouse, so it runs before any expensive fixture.
+    """
+    if not getattr(request.config.option, "loadgroup", False):  # set on xdist workers under loadgroup
+        return
+    items = request.session.items
+    lost = [item.nodeid for item in items if item.get_closest_marker("xdist_group") and "@" not in item.nodeid]
+    if lost:
+        pytest.fail(
+            f"pytest-xdist's loadgroup did not group {len(lost)} tests (e.g. {lost[0]}): this pytest and "
+            "pytest-xdist do not work together; install the versions pinned in requirements.lock"
+        )
+
+
 @pytest.fixture(scope="module")
 def point_envs():
     """The test-only point-mass envs of tests/tiny_env.py, registered for one test module
