@@ -4,8 +4,13 @@ Raw physics = the same number of `mjx.step` calls per control step (the env's n_
 over the same batch: the physics limit for that env. The ratio env/raw shows what observation,
 reward, NaN guard and action handling cost (target: ratio >= 0.9).
 
+Both programs are compiled first, then timed in alternation, one call of each per round (`--rounds`
+rounds): the speed of this CPU drifts by tens of percent between consecutive seconds, so timing one
+program and then the other measures the drift. The ratio printed is the median over rounds of the
+paired ratio raw time / env time (its min and max show the spread); steps/s are medians too.
+
     .venv/bin/python benchmarks/env_throughput.py [--envs ant_run humanoid_run] [--batches 1 64 256]
-        [--dm-control]
+        [--steps 20] [--rounds 9] [--dm-control]
 
 `--dm-control` adds the reference the rodent envs replace: dm_control's own `rodent_run_gaps`
 (`locomotion.examples.basic_rodent_2020`: MuJoCo C, 1 ms physics steps, one process), with its
@@ -16,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import platform
+import statistics
 import time
 
 import jax
@@ -23,26 +29,19 @@ from mujoco import mjx
 
 import vnl
 
-STEPS = 20  # control steps per timed call (one lax.scan)
 
-
-def _time(fn, *args, repeats: int = 3) -> float:
-    """Best wall time of `fn(*args)` over `repeats` calls after one compile call."""
+def _seconds(fn, *args) -> float:
+    t = time.perf_counter()
     jax.block_until_ready(fn(*args))
-    best = float("inf")
-    for _ in range(repeats):
-        t = time.perf_counter()
-        jax.block_until_ready(fn(*args))
-        best = min(best, time.perf_counter() - t)
-    return best
+    return time.perf_counter() - t
 
 
-def measure(name: str, batch: int) -> tuple[float, float]:
-    """(env, raw) steps/s of `name` at `batch`."""
+def measure(name: str, batch: int, steps: int, rounds: int) -> tuple[float, float, list[float]]:
+    """Median (env, raw) steps/s of `name` at `batch` and the per-round ratios env/raw."""
     env = vnl.make(name)
     keys = jax.random.split(jax.random.PRNGKey(0), batch)
     state = jax.jit(jax.vmap(env.reset))(keys)
-    actions = jax.random.uniform(jax.random.PRNGKey(1), (STEPS, batch, env.action_size), minval=-1, maxval=1)
+    actions = jax.random.uniform(jax.random.PRNGKey(1), (steps, batch, env.action_size), minval=-1, maxval=1)
 
     @jax.jit
     def env_run(state, actions):
@@ -61,9 +60,15 @@ def measure(name: str, batch: int) -> tuple[float, float]:
 
         return jax.lax.scan(control, data, actions)[0]
 
-    t_env = _time(env_run, state, actions)
-    t_raw = _time(raw_run, state.data, actions)
-    return batch * STEPS / t_env, batch * STEPS / t_raw
+    _seconds(env_run, state, actions)  # compile both before timing either
+    _seconds(raw_run, state.data, actions)
+    t_env, t_raw = [], []
+    for _ in range(rounds):
+        t_env.append(_seconds(env_run, state, actions))
+        t_raw.append(_seconds(raw_run, state.data, actions))
+    ratios = sorted(r / e for e, r in zip(t_env, t_raw, strict=True))
+    n = batch * steps
+    return n / statistics.median(t_env), n / statistics.median(t_raw), ratios
 
 
 def dm_control_rodent(camera: bool, steps: int = 200) -> float:
@@ -89,14 +94,21 @@ def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--envs", nargs="+", default=vnl.names())
     parser.add_argument("--batches", nargs="+", type=int, default=[1, 64, 256])
+    parser.add_argument("--steps", type=int, default=20, help="control steps per timed call (one lax.scan)")
+    parser.add_argument("--rounds", type=int, default=9, help="alternating env/raw timings per row")
     parser.add_argument("--dm-control", action="store_true", help="time dm_control's rodent_run_gaps too")
     args = parser.parse_args()
     print(f"device: {jax.devices()[0].platform} x{jax.device_count()}, {platform.processor() or platform.machine()}")
-    print(f"{'env':<16} {'batch':>6} {'env steps/s':>12} {'raw steps/s':>12} {'env/raw':>8}")
+    print(f"{args.steps} control steps per call, {args.rounds} alternating rounds; medians")
+    print(f"{'env':<16} {'batch':>6} {'env steps/s':>12} {'raw steps/s':>12} {'env/raw':>8} {'min-max':>11}")
     for name in args.envs:
         for batch in args.batches:
-            env_sps, raw_sps = measure(name, batch)
-            print(f"{name:<16} {batch:>6} {env_sps:>12,.0f} {raw_sps:>12,.0f} {env_sps / raw_sps:>8.2f}", flush=True)
+            env_sps, raw_sps, ratios = measure(name, batch, args.steps, args.rounds)
+            print(
+                f"{name:<16} {batch:>6} {env_sps:>12,.0f} {raw_sps:>12,.0f} {statistics.median(ratios):>8.2f} "
+                f"{ratios[0]:>5.2f}-{ratios[-1]:.2f}",
+                flush=True,
+            )
     if args.dm_control:
         print("dm_control rodent_run_gaps (MuJoCo C, 1 process, batch 1), control steps/s:")
         for camera in (True, False):
