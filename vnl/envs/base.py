@@ -17,6 +17,8 @@ import mujoco
 from flax import struct
 from mujoco import mjx
 
+from vnl import physics as physics_lib
+
 Observation = jax.Array | dict[str, jax.Array]
 
 
@@ -25,7 +27,8 @@ class State:
     """One environment's state (add leading batch axes with vmap).
 
     Attributes:
-      data: MJX physics state.
+      data: physics state: `mjx.Data` (impl jax/warp) or `vnl.physics.CData` (impl c), with
+        MJX's field names.
       obs: observation, shape (observation_size,) (or a dict of arrays for pixel envs).
       reward: scalar float32.
       done: scalar float32, 1.0 when the episode ended at this step.
@@ -33,7 +36,7 @@ class State:
       info: task bookkeeping carried between steps (rng, last action, ...).
     """
 
-    data: mjx.Data
+    data: physics_lib.Data
     obs: Observation
     reward: jax.Array
     done: jax.Array
@@ -42,19 +45,25 @@ class State:
 
 
 class Env(abc.ABC):
-    """Base class: owns the compiled `mujoco.MjModel` and its `mjx.Model`.
+    """Base class: owns the compiled `mujoco.MjModel`, its `mjx.Model` and its physics.
 
-    Subclasses implement `reset` and `step`; they call `physics_step` to advance the physics
-    (`n_substeps` calls of `mjx.step` per control step) with the NaN guard.
+    Subclasses implement `reset` and `step`; they build states with `make_data` + `forward` and
+    advance them with `physics_step` (`n_substeps` physics steps per control step, NaN guard).
+    `impl` picks the physics (`vnl.physics`: `jax`, `warp` or `c`); `threads` is C's thread pool.
     """
 
-    def __init__(self, config: Any, mj_model: mujoco.MjModel, n_substeps: int, impl: str = "jax") -> None:
+    def __init__(
+        self, config: Any, mj_model: mujoco.MjModel, n_substeps: int, impl: str = "jax", threads: int | None = None
+    ) -> None:
         self._config = config
         self._mj_model = mj_model
         # MJX places the model on `jax.devices()[0]`, which in a multi-process run belongs to
-        # process 0; this process's default device is its first local one.
-        device = jax.local_devices()[0] if impl == "jax" else None
-        self._mjx_model = mjx.put_model(mj_model, impl=impl, device=device)
+        # process 0; this process's default device is its first local one. Under impl c the
+        # mjx.Model holds the model fields that domain randomization varies per env.
+        mjx_impl = "jax" if impl == "c" else impl
+        device = jax.local_devices()[0] if mjx_impl == "jax" else None
+        self._mjx_model = mjx.put_model(mj_model, impl=mjx_impl, device=device)
+        self._physics = physics_lib.make(mj_model, impl, threads)
         self._n_substeps = int(n_substeps)
         ctrlrange = mj_model.actuator_ctrlrange.astype("float32")
         limited = mj_model.actuator_ctrllimited.astype(bool)
@@ -94,6 +103,11 @@ class Env(abc.ABC):
         return self._n_substeps
 
     @property
+    def physics(self) -> physics_lib.Physics:
+        """The physics implementation (`physics.impl`: jax, warp or c)."""
+        return self._physics
+
+    @property
     def action_size(self) -> int:
         return int(self._mj_model.nu)
 
@@ -129,19 +143,27 @@ class Env(abc.ABC):
         action = jp.nan_to_num(action, nan=0.0, posinf=0.0, neginf=0.0)
         return jp.clip(action, self._ctrl_lo, self._ctrl_hi)
 
-    def physics_step(self, data: mjx.Data, ctrl: jax.Array) -> tuple[mjx.Data, jax.Array]:
+    def make_data(self, **fields: jax.Array) -> physics_lib.Data:
+        """The model's default physics state with `fields` (qpos, qvel, mocap_pos, ...) replaced;
+        call `forward` before reading positions or velocities from it."""
+        return self._physics.make_data(self._mjx_model, **fields)
+
+    def forward(self, data: physics_lib.Data) -> physics_lib.Data:
+        """Every derived quantity (positions, frames, velocities, forces) of `data`'s state."""
+        return self._physics.forward(self._mjx_model, data)
+
+    def physics_step(self, data: physics_lib.Data, ctrl: jax.Array) -> tuple[physics_lib.Data, jax.Array]:
         """`n_substeps` physics steps with `ctrl`; returns (data, blew_up).
 
-        If the new state has a NaN/Inf in qpos, qvel or qacc, the previous (finite) data is
-        returned with `blew_up=1.0`; callers end the episode, so the bad state never reaches
+        The returned data's positions, frames, centres of mass and velocities are those of the new
+        state. If the new state is not finite (or MuJoCo C found it unstable), the previous data
+        is returned with `blew_up=1.0`; callers end the episode, so the bad state never reaches
         observations, rewards or gradients.
         """
-        data0 = data.replace(ctrl=ctrl)
+        return self._physics.step(self._mjx_model, data, ctrl, self._n_substeps)
 
-        def body(d: mjx.Data, _: Any) -> tuple[mjx.Data, None]:
-            return mjx.step(self._mjx_model, d), None
-
-        data1, _ = jax.lax.scan(body, data0, None, length=self._n_substeps)
-        finite = jp.isfinite(data1.qpos).all() & jp.isfinite(data1.qvel).all() & jp.isfinite(data1.qacc).all()
-        data_out = jax.tree.map(lambda new, old: jp.where(finite, new, old), data1, data0)
-        return data_out, 1.0 - finite.astype(jp.float32)
+    def set_per_env_fields(self, names: tuple[str, ...]) -> None:
+        """Declares the mjx.Model fields that differ between envs (domain randomization), so that
+        physics running outside JAX (impl c) receives each env's values."""
+        if isinstance(self._physics, physics_lib.CPhysics):
+            self._physics.per_env_fields = tuple(sorted(set(self._physics.per_env_fields) | set(names)))

@@ -164,6 +164,9 @@ class RandomizedVmapWrapper(brax_training.Wrapper):
             raise VnlError(f"randomized model fields have different batch sizes {sorted(sizes)}")
         self.num_models = sizes.pop() if sizes else 0
         self.axis_name = axis_name
+        # Physics outside JAX (impl c) receives the env's values of these fields with every call.
+        batched = [n for names in FIELDS.values() for n in names if getattr(self.in_axes, n) is not None]
+        env.unwrapped.set_per_env_fields(tuple(batched))
 
     def _local_model(self, batch: int) -> mjx.Model:
         if self.axis_name is None:

@@ -18,6 +18,7 @@ import numpy as np
 from dm_control import mjcf
 from mujoco import mjx
 
+from vnl import physics
 from vnl.envs.base import Env
 from vnl.errors import VnlError
 from vnl.walkers import mjx_compat
@@ -47,11 +48,15 @@ class WalkerTaskConfig:
     contacts: Literal["all", "essential"] = "essential"  # which walker geoms touch the arena
     rigid_tail: bool = True  # rodent: tail joints removed (faster MJX compile), see walkers.rodent
     observation: Literal["state", "proprioception"] = "proprioception"
-    impl: Literal["jax", "warp"] = "jax"  # MJX implementation; warp needs an NVIDIA GPU (see README)
+    # Physics (vnl.physics): jax = MJX on any device; warp = MJX on NVIDIA GPUs; c = MuJoCo C on
+    # `threads` threads (null: the cores this process may use), the fast choice on a CPU.
+    impl: Literal["jax", "warp", "c"] = "jax"
+    threads: int | None = None
 
     def validate(self) -> None:
         if self.impl == "warp":
             check_warp_available()
+        physics.resolve_threads(self.threads)
         for key in ("episode_length", "n_substeps", "iterations", "ls_iterations"):
             if getattr(self, key) < 1:
                 raise VnlError(f"{key} must be >= 1, got {getattr(self, key)}")
@@ -225,7 +230,7 @@ class WalkerTask(Env):
     ) -> None:
         set_physics_options(model, config)
         try:
-            super().__init__(config, model, config.n_substeps, impl=config.impl)
+            super().__init__(config, model, config.n_substeps, impl=config.impl, threads=config.threads)
         except NotImplementedError as e:
             raise VnlError(f"MJX cannot simulate this model: {e}") from None
         self._walker = walker
@@ -274,21 +279,6 @@ class WalkerTask(Env):
         return self._root
 
     # --- kinematic quantities (pure JAX) -------------------------------------------------------
-    def sync_kinematics(self, data: mjx.Data) -> mjx.Data:
-        """Positions, frames, centres of mass and body velocities recomputed for the final
-        qpos/qvel of a control step.
-
-        `mjx.step` computes kinematics before integrating, so after it `xpos`, `cvel`, ... lag
-        `qpos`/`qvel` by one physics step. dm_control's `Physics.step` recomputes them (its
-        `mj_step1` after `mj_step2`) before the task reads rewards; tasks that reproduce
-        dm_control's rewards do the same.
-        """
-        m = self._mjx_model
-        data = mjx.kinematics(m, data)
-        data = mjx.com_pos(m, data)
-        data = mjx.tendon(m, data)
-        return mjx.com_vel(m, data)
-
     def subtree_linvel(self, data: mjx.Data) -> jax.Array:
         """Linear velocity of the root body's subtree centre of mass, world frame, shape (3,).
 
@@ -336,7 +326,7 @@ class WalkerTask(Env):
         m = self._mj_model
         parts = [data.qpos[self._joint_qpos], data.qvel[self._joint_qvel]]
         if m.ntendon:
-            parts += [data.ten_length, data._impl.ten_velocity]  # MJX keeps ten_velocity in impl data
+            parts += [data.ten_length, physics.ten_velocity(data)]
         if m.na:
             parts.append(data.act)
         parts.append(data.xpos[self._root, 2:3])

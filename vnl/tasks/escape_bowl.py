@@ -103,8 +103,7 @@ class EscapeBowl(WalkerTask):
         qpos = self.initial_qpos(k_pose, jp.array([0.0, 0.0, self._spawn_z]), yaw)
         noise = cfg.reset_noise_scale
         qvel = jax.random.uniform(k_vel, (self._mj_model.nv,), minval=-noise, maxval=noise)
-        data = mjx.make_data(self._mjx_model).replace(qpos=qpos, qvel=qvel)
-        data = mjx.forward(self._mjx_model, data)
+        data = self.forward(self.make_data(qpos=qpos, qvel=qvel))
         zero = jp.zeros((), jp.float32)
         metrics = {
             "reward/escape": zero,
@@ -118,7 +117,6 @@ class EscapeBowl(WalkerTask):
     def step(self, state: State, action: jax.Array) -> State:
         action = self.sanitize_action(action)
         data, blew_up = self.physics_step(state.data, action)
-        data = self.sync_kinematics(data)
         ok = 1.0 - blew_up
         escape, upright = self.reward_factors(data)
         reward = escape * upright * ok

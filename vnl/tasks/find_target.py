@@ -14,14 +14,17 @@ decrease of the distance per second), `reached` = `reached_bonus` while the ball
 from __future__ import annotations
 
 import dataclasses
+from typing import Literal
 
 import jax
 import jax.numpy as jp
 import mujoco
 from mujoco import mjx
 
+from vnl import physics
 from vnl.envs.base import Env, State
 from vnl.errors import VnlError
+from vnl.tasks.base import check_warp_available
 
 XML = """
 <mujoco model="find_target">
@@ -66,6 +69,8 @@ class FindTargetConfig:
     gear: float = 5.0  # force (N) at action 1 on the 1 kg ball
     damping: float = 2.0  # N·s/m on each slide joint: top speed gear / damping
     reset_noise_scale: float = 0.05  # the ball's start position, uniform ± this
+    impl: Literal["jax", "warp", "c"] = "jax"  # physics (vnl.physics); c = MuJoCo C on `threads` threads
+    threads: int | None = None
 
     def validate(self) -> None:
         if self.episode_length < 1 or self.n_substeps < 1:
@@ -83,6 +88,9 @@ class FindTargetConfig:
         for key in ("reached_bonus", "ctrl_cost_weight", "reset_noise_scale"):
             if getattr(self, key) < 0:
                 raise VnlError(f"{key} must be >= 0, got {getattr(self, key)}")
+        if self.impl == "warp":
+            check_warp_available()
+        physics.resolve_threads(self.threads)
 
 
 FIND_TARGET = FindTargetConfig()
@@ -101,7 +109,8 @@ class FindTarget(Env):
             gear=c.gear,
             target_size=c.target_size,
         )
-        super().__init__(config, mujoco.MjModel.from_xml_string(xml), n_substeps=c.n_substeps)
+        model = mujoco.MjModel.from_xml_string(xml)
+        super().__init__(config, model, n_substeps=c.n_substeps, impl=c.impl, threads=c.threads)
 
     def reset(self, rng: jax.Array) -> State:
         c = self.config
@@ -110,8 +119,7 @@ class FindTarget(Env):
         angle = jax.random.uniform(k_angle, (), maxval=2 * jp.pi)
         dist = jax.random.uniform(k_dist, (), minval=c.target_min_distance, maxval=c.target_max_distance)
         target = jp.stack([qpos[0] + dist * jp.cos(angle), qpos[1] + dist * jp.sin(angle), 0.1])
-        data = mjx.make_data(self.mjx_model).replace(qpos=qpos, mocap_pos=target[None])
-        data = mjx.forward(self.mjx_model, data)
+        data = self.forward(self.make_data(qpos=qpos, mocap_pos=target[None]))
         zero = jp.zeros(())
         metrics = {
             "reward/approach": zero,

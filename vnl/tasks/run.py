@@ -22,9 +22,11 @@ import jax
 import jax.numpy as jp
 from mujoco import mjx
 
+from vnl import physics
 from vnl.arenas import floor
 from vnl.envs.base import State
 from vnl.errors import VnlError
+from vnl.physics import mjx_physics
 from vnl.tasks.base import WalkerTask, WalkerTaskConfig, build_walker, compile_world, spawn_height
 
 
@@ -60,7 +62,10 @@ class RunConfig(WalkerTaskConfig):
                     "brax_ant / brax_humanoid), or backend: mjx"
                 )
             if self.impl != "jax":
-                raise VnlError("impl applies to backend: mjx only; use impl: jax with a Brax backend")
+                raise VnlError(
+                    f"impl: {self.impl} applies to backend: mjx only (a Brax backend is its own physics); "
+                    "use impl: jax with a Brax backend"
+                )
         lo, hi = self.healthy_z_range
         if not lo < hi:
             raise VnlError(f"healthy_z_range must be (low, high) with low < high, got {(lo, hi)}")
@@ -184,8 +189,7 @@ class Run(WalkerTask):
         else:
             qpos = self.initial_qpos(k1, jp.array([0.0, 0.0, self._spawn_z]))
         qvel = jax.random.uniform(k2, (self._mj_model.nv,), minval=-noise, maxval=noise)
-        data = mjx.make_data(self._mjx_model).replace(qpos=qpos, qvel=qvel)
-        data = mjx.forward(self._mjx_model, data)
+        data = self.forward(self.make_data(qpos=qpos, qvel=qvel))
         zero = jp.zeros((), jp.float32)
         root_xy = data.xpos[self._root, :2]
         metrics = {
@@ -217,7 +221,7 @@ class Run(WalkerTask):
             qfrc_actuator=self._brax.actuator_force(pipeline, action),
             time=state.data.time + self.dt * (1.0 - blew_up),
         )
-        return self.sync_kinematics(data), blew_up, {**state.info, "pipeline": pipeline}
+        return mjx_physics.sync(self._mjx_model, data), blew_up, {**state.info, "pipeline": pipeline}
 
     def step(self, state: State, action: jax.Array) -> State:
         cfg: RunConfig = self._config
@@ -280,7 +284,7 @@ class Run(WalkerTask):
         parts = [data.qpos[self._obs_qpos_start :], data.qvel]
         if self._walker.name in ("humanoid", "brax_humanoid"):
             parts += [
-                data._impl.cinert[1:].ravel(),  # MJX keeps cinert in its impl data
+                physics.cinert(data)[1:].ravel(),
                 data.cvel[1:].ravel(),
                 data.qfrc_actuator,
             ]

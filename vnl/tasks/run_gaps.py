@@ -68,6 +68,11 @@ class RunGapsConfig(WalkerTaskConfig):
             raise VnlError("corridor.corridor_width and corridor.corridor_length must be > 0")
         if c.behind < 0 or c.ahead < 0 or c.visual_ahead < 0:
             raise VnlError("corridor.behind, corridor.ahead and corridor.visual_ahead must be >= 0")
+        if self.contact_termination and self.impl == "c":
+            raise VnlError(
+                "contact_termination reads MJX's contact list, which MuJoCo C physics does not return; "
+                "use impl: jax with contact_termination, or turn it off"
+            )
         if not 0 <= self.spawn_x < c.start_length:
             raise VnlError(f"spawn_x must be in the gapless start region [0, {c.start_length}), got {self.spawn_x}")
 
@@ -127,8 +132,7 @@ class RunGaps(WalkerTask):
         noise = cfg.reset_noise_scale
         qvel = jax.random.uniform(k_vel, (self._mj_model.nv,), minval=-noise, maxval=noise)
         mocap = gaps.place_window(layout, jp.float32(cfg.spawn_x), self._params)
-        data = mjx.make_data(self._mjx_model).replace(qpos=qpos, qvel=qvel, mocap_pos=mocap)
-        data = mjx.forward(self._mjx_model, data)
+        data = self.forward(self.make_data(qpos=qpos, qvel=qvel, mocap_pos=mocap))
         zero = jp.zeros((), jp.float32)
         metrics = {
             "reward/velocity": zero,
@@ -147,7 +151,6 @@ class RunGaps(WalkerTask):
         layout: gaps.Layout = state.info["layout"]
         data0 = state.data.replace(mocap_pos=gaps.place_window(layout, state.data.xpos[self._root, 0], self._params))
         data, blew_up = self.physics_step(data0, action)
-        data = self.sync_kinematics(data)
         ok = 1.0 - blew_up
         vx = self.subtree_linvel(data)[0]
         velocity = rewards.tolerance(vx, (cfg.target_velocity, cfg.target_velocity), margin=cfg.target_velocity)
