@@ -49,6 +49,25 @@ def _say(text: str) -> None:
     print(text, flush=True)
 
 
+def _compilation_cache(args: argparse.Namespace) -> None:
+    """Turns on JAX's persistent compilation cache (unless --no-compile-cache), so that a second
+    run of the same env and shapes loads its compiled programs instead of compiling them.
+
+    The directory: --compile-cache DIR, else $VNL_COMPILE_CACHE, else $XDG_CACHE_HOME/vnl/jax
+    (~/.cache/vnl/jax). One that cannot be created is reported and the cache stays off.
+    """
+    if getattr(args, "no_compile_cache", True):
+        return
+    from vnl import compile_cache
+
+    default = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "vnl" / "jax"
+    directory = Path(args.compile_cache or os.environ.get("VNL_COMPILE_CACHE") or default).expanduser()
+    try:
+        compile_cache.enable(directory)
+    except OSError as e:
+        _say(f"[vnl] compilation cache off: cannot use {directory} ({e.strerror or e}); see --compile-cache")
+
+
 def _no_gl_line() -> str:
     return (
         "[vnl] video skipped: no OpenGL found. Install EGL or OSMesa (Debian: apt-get install "
@@ -293,6 +312,14 @@ def cmd_analyze(args: argparse.Namespace) -> int:
 
 
 # --- parser -----------------------------------------------------------------------------------
+def _cache_flags(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("compilation cache (compiled programs reused by later runs of the same env and shapes)")
+    g.add_argument(
+        "--compile-cache", metavar="DIR", help="cache directory (default: $VNL_COMPILE_CACHE or ~/.cache/vnl/jax)"
+    )
+    g.add_argument("--no-compile-cache", action="store_true", help="compile everything afresh and cache nothing")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="vnl", description="Virtual Neuroscience Lab")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -319,6 +346,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--num-envs", type=int, help="parallel environments (ppo.num_envs)")
     p.add_argument("--no-video", action="store_true", help="skip the final-policy video")
     p.add_argument("--vision", action="store_true", help="the policy also sees its egocentric camera (vision.enabled)")
+    _cache_flags(p)
     g = p.add_argument_group("multi-host (one process per host; process 0 writes the run directory)")
     g.add_argument("--distributed", action="store_true", help="join a multi-process run detected from SLURM/MPI")
     g.add_argument("--coordinator", metavar="HOST:PORT", help="manual launch: process 0's address")
@@ -332,6 +360,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--step", type=int, help="checkpoint step (default: newest)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", help="JSON file (default <run_dir>/eval.json)")
+    _cache_flags(p)
 
     p = sub.add_parser("render", help="video of a trained policy")
     p.add_argument("run_dir", nargs="?")
@@ -344,6 +373,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--list-cameras", action="store_true", help="list the model's named cameras")
     p.add_argument("--env", help="with --list-cameras and no RUN_DIR: the environment")
+    _cache_flags(p)
 
     p = sub.add_parser("plot", help="learning curves of one or several runs on one PNG")
     p.add_argument("run_dirs", nargs="+", metavar="RUN_DIR")
@@ -358,6 +388,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--stochastic", action="store_true", help="sample actions instead of the mean action")
     p.add_argument("--out", help="NetCDF file (default <run_dir>/record.nc)")
+    _cache_flags(p)
 
     p = sub.add_parser("analyze", help="PCA of a recorded layer over time, as a PNG")
     p.add_argument("recording", help="a file written by `vnl record`")
@@ -372,6 +403,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     gl = _configure_process()
     from vnl.errors import VnlError
 
+    _compilation_cache(args)
     try:
         if args.command == "list":
             return cmd_list(args)

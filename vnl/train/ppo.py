@@ -207,11 +207,14 @@ def make_record(step: int, wall_time: float, brax_metrics: dict[str, Any]) -> di
     return record
 
 
-SAFE_TO_CHANGE_ON_RESUME = ("ppo.num_timesteps", "log.")
+SAFE_TO_CHANGE_ON_RESUME = ("ppo.num_timesteps", "log.", "env_config.threads")
+"""What a resumed run may change: its length, logging, and C physics' thread count (MuJoCo's
+batched stepping is bit-identical at any thread count)."""
 
 
 def resume_config(saved: TrainConfig, assignments: list[str] | None, flags: dict[str, Any] | None) -> TrainConfig:
-    """`saved` with `--set`/flag changes applied; only total steps and `log.*` may change.
+    """`saved` with `--set`/flag changes applied; only total steps, `log.*` and
+    `env_config.threads` may change.
 
     Anything else (env, network, PPO hyperparameters, seed) would make the continued run a
     different experiment, so it is refused with the list of offending keys.
@@ -228,7 +231,7 @@ def resume_config(saved: TrainConfig, assignments: list[str] | None, flags: dict
         detail = ", ".join(f"{k}: {before.get(k)!r} -> {after.get(k)!r}" for k in unsafe)
         raise VnlError(
             f"cannot resume with a changed {detail}; a resumed run may only change ppo.num_timesteps "
-            "(--steps) and log.* settings. Start a new run for a different configuration."
+            "(--steps), log.* settings and env_config.threads. Start a new run for a different configuration."
         )
     return new
 
@@ -236,10 +239,10 @@ def resume_config(saved: TrainConfig, assignments: list[str] | None, flags: dict
 def _flatten(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
     out: dict[str, Any] = {}
     for k, v in d.items():
-        if isinstance(v, dict) and not (prefix == "" and k == "env_config"):
+        if isinstance(v, dict) and v:
             out.update(_flatten(v, f"{prefix}{k}."))
         else:
-            out[f"{prefix}{k}"] = repr(v) if isinstance(v, dict) else v
+            out[f"{prefix}{k}"] = v
     return out
 
 
@@ -454,6 +457,7 @@ def _run(
         f"[vnl] {'resuming' if restored else 'training'} {config.env} (preset {config.preset}) on "
         f"{loop.n_devices} {jax.default_backend()} device(s)"
         + (f" on each of {loop.process_count} processes" if loop.process_count > 1 else "")
+        + f", physics {env.unwrapped.physics.describe()}"
         + f" -> {run_dir}"
         + (f" from step {restored[0]:,}" if restored else "")
     )
@@ -464,20 +468,23 @@ def _run(
         )
     if loop.randomization and not restored and lead:
         (run_dir / "randomization.json").write_text(json.dumps(loop.randomization, indent=2) + "\n")
-    say("[vnl] compiling (first evaluation follows; on a CPU this takes 1-2 minutes for the ant, ~10 for the rat)...")
+    say("[vnl] compiling (on a CPU about a minute; seconds with a warm compilation cache)...")
     interrupted = False
     first_step = restored[0] if restored else 0
     try:
         with _stop_on_signals(stop):
             if restored:
                 state = loop.from_arrays(restored[1])
+                loop.compile(state)
                 n_evals[0] = 1  # checkpoint_every counts evaluations after the restored one
             else:
                 state = loop.init(config.seed)
+                loop.compile(state)
                 state, metrics = loop.evaluate(state, {}) if lead else (state, {})
                 record = make_record(0, time.time() - t_start, metrics)
                 save(0, state, record, force=True)
                 log(record)
+            say(f"[vnl] compiled and ready {time.time() - t_start:.0f} s after start; training")
             step = loop.env_steps(state)
             # With several processes a stop is agreed on (any process's signal stops all of them
             # at the same epoch), since checkpointing is collective.
