@@ -12,6 +12,14 @@ like-for-like comparison: its ratio (means over repeats) is printed too. Target 
 included) and the size of vnl's checkpoints are printed too.
 
     .venv/bin/python benchmarks/ppo_throughput.py [--env ant_run] [--steps 600000]
+
+`--compare physics` instead times `vnl train` with MuJoCo C physics (`impl: c`) against MJX
+(`impl: jax`) on the env's cpu preset, alternating the two (`--repeats` pairs). Each run's speed
+is the median `training/sps` over its epochs (compiled ahead of time, so no epoch includes a
+compile); the C/MJX ratio is the median of the per-pair ratios. Each run's seconds to its first
+training step (compiles included, no compilation cache) are printed too.
+
+    .venv/bin/python benchmarks/ppo_throughput.py --compare physics --env rodent_run --steps 100000
 """
 
 from __future__ import annotations
@@ -54,12 +62,47 @@ def vnl_adapter(cfg: train_config.TrainConfig) -> list[float]:
     return [r["env_steps_per_sec"] for r in result.records if r["env_steps_per_sec"] > 0]
 
 
+def compare_physics(env: str, steps: int, repeats: int) -> None:
+    """`vnl train` with impl c vs impl jax, alternating; prints a table of env steps/s."""
+    print(f"device: {jax.devices()[0].platform} x{jax.device_count()}; {env}, {steps:,} steps, cpu preset")
+    speed: dict[str, list[float]] = {"c": [], "jax": []}
+    for _ in range(repeats):
+        for impl in ("jax", "c"):
+            flags = {"ppo": {"num_timesteps": steps}, "log": {"video": False, "progress": False}}
+            cfg = train_config.build(env, "cpu", flags={**flags, "env_config": {"impl": impl}})
+            lines: list[str] = []
+            t = time.time()
+
+            def say(text: str, lines: list[str] = lines, t: float = t) -> None:
+                lines.append(f"{time.time() - t:.1f} {text}")
+
+            with tempfile.TemporaryDirectory() as d:
+                result = ppo.train(cfg, Path(d) / "run", say=say)
+            ready = next(float(x.split()[0]) for x in lines if "compiled and ready" in x)
+            sps = [r["env_steps_per_sec"] for r in result.records if r["env_steps_per_sec"] > 0]
+            speed[impl].append(statistics.median(sps))
+            print(
+                f"  {impl}: {cfg.ppo.num_envs} envs, per-epoch env steps/s {', '.join(f'{s:,.0f}' for s in sps)}; "
+                f"first training step after {ready:.0f} s; wall time {time.time() - t:.0f} s",
+                flush=True,
+            )
+    ratios = sorted(c / j for c, j in zip(speed["c"], speed["jax"], strict=True))
+    print(f"{'physics':<8} {'env steps/s (median of runs)':>30}")
+    for impl, values in speed.items():
+        print(f"{impl:<8} {statistics.median(values):>30,.0f}")
+    print(f"ratio c/jax: {statistics.median(ratios):.2f} (pairs: {', '.join(f'{r:.2f}' for r in ratios)})")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--env", default="ant_run")
     parser.add_argument("--steps", type=int, default=400_000)
-    parser.add_argument("--repeats", type=int, default=2, help="alternating brax/vnl pairs (CPU speed drifts)")
+    parser.add_argument("--repeats", type=int, default=2, help="alternating pairs (CPU speed drifts)")
+    parser.add_argument("--compare", choices=["brax", "physics"], default="brax")
     args = parser.parse_args()
+    if args.compare == "physics":
+        compare_physics(args.env, args.steps, args.repeats)
+        return
     cfg = train_config.build(
         args.env,
         "cpu",
