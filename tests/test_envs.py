@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import vnl
+from vnl import physics
 from vnl.envs import registry
 from vnl.errors import VnlError
 from vnl.tasks.run import Run
@@ -22,9 +23,11 @@ NAMES = [n for n in vnl.names() if n not in registry.ALIASES and not n.startswit
 RUN_NAMES = [n for n in NAMES if registry.entry(n).factory is Run]
 STEPS = 1000
 FIELDS = (
+    "time",
     "qpos",
     "qvel",
     "act",
+    "qacc_warmstart",
     "mocap_pos",
     "xpos",
     "xmat",
@@ -40,13 +43,21 @@ FIELDS = (
 
 
 def _pick(data):
-    """The FIELDS of an mjx.Data (plus MJX's impl-only `cinert`) as a dict."""
-    return {**{f: getattr(data, f) for f in FIELDS}, "cinert": data._impl.cinert}
+    """The FIELDS of the physics data (plus `cinert`) as a dict."""
+    return {**{f: getattr(data, f) for f in FIELDS}, "cinert": physics.cinert(data)}
 
 
-def by_env(names):
-    """Parameters grouped per env for pytest-xdist (`--dist loadgroup`): one compile per worker."""
-    return [pytest.param(n, marks=pytest.mark.xdist_group(n)) for n in names]
+def by_env(names, impls=("jax",)):
+    """(name, impl) parameters grouped per env and physics for pytest-xdist (`--dist loadgroup`):
+    one compile per worker. MuJoCo C physics (impl c) compiles nothing of MuJoCo: cheap to add."""
+    return [
+        pytest.param(n, i, marks=pytest.mark.xdist_group(n if i == "jax" else f"{n}-{i}"), id=f"{n}-{i}")
+        for n in names
+        for i in impls
+    ]
+
+
+BOTH = ("jax", "c")
 
 
 def batch_size(name):
@@ -54,14 +65,14 @@ def batch_size(name):
 
 
 @functools.cache
-def env(name):
-    return vnl.make(name)
+def env(name, impl="jax"):
+    return vnl.make(name, impl=impl)
 
 
 @functools.cache
-def random_rollout(name):
+def random_rollout(name, impl="jax"):
     """(initial state, per-step outputs, actions) for STEPS steps; per-step `data` holds FIELDS."""
-    e = env(name)
+    e = env(name, impl)
     b = batch_size(name)
 
     @jax.jit
@@ -73,7 +84,7 @@ def random_rollout(name):
 
         def body(s, a):
             nxt = jax.vmap(e.step)(s, a)
-            out = nxt.replace(data=_pick(nxt.data), info={})
+            out = nxt.replace(data=_pick(nxt.data))
             return nxt, out
 
         _, traj = jax.lax.scan(body, s0, actions)
@@ -82,11 +93,11 @@ def random_rollout(name):
     return jax.device_get(go(jax.random.PRNGKey(0)))
 
 
-@pytest.mark.parametrize("name", by_env(NAMES))
-def test_reset_step_shapes_and_finiteness(name):
-    e = env(name)
+@pytest.mark.parametrize("name,impl", by_env(NAMES, BOTH))
+def test_reset_step_shapes_and_finiteness(name, impl):
+    e = env(name, impl)
     b = batch_size(name)
-    s0, traj, _ = random_rollout(name)
+    s0, traj, _ = random_rollout(name, impl)
     assert s0.obs.shape == (b, e.observation_size)
     assert traj.obs.shape == (STEPS, b, e.observation_size)
     assert traj.reward.shape == (STEPS, b) and traj.done.shape == (STEPS, b)
@@ -104,12 +115,12 @@ def test_reset_step_shapes_and_finiteness(name):
     assert sum(w for _, w in e.observation_layout()) == e.observation_size
 
 
-@pytest.mark.parametrize("name", by_env(RUN_NAMES))
-def test_reward_terms_match_independent_recomputation(name):
-    e = env(name)
+@pytest.mark.parametrize("name,impl", by_env(RUN_NAMES, BOTH))
+def test_reward_terms_match_independent_recomputation(name, impl):
+    e = env(name, impl)
     cfg = e.config
     m = e.mj_model
-    s0, traj, actions = random_rollout(name)
+    s0, traj, actions = random_rollout(name, impl)
     root = e.root_body_id
     # The subtree of the root body is every body below it: check subtree_com is the
     # mass-weighted mean of those bodies' centres of mass (the notebooks read the wrong body).
@@ -235,13 +246,13 @@ def _mj_data(e, traj, t, b):
 SAMPLE_T = (0, 1, 10, 50, 99, 300, 999)
 
 
-@pytest.mark.parametrize("name", by_env(["rodent_run_gaps", "ant_run_gaps"]))
-def test_run_gaps_reward_equals_dm_control_formula(name):
+@pytest.mark.parametrize("name,impl", by_env(["rodent_run_gaps", "ant_run_gaps"], BOTH))
+def test_run_gaps_reward_equals_dm_control_formula(name, impl):
     from dm_control.utils import rewards as dmc_rewards
 
-    e = env(name)
+    e = env(name, impl)
     v = e.config.target_velocity
-    _, traj, _ = random_rollout(name)
+    _, traj, _ = random_rollout(name, impl)
     for b in range(batch_size(name)):
         for t in SAMPLE_T:
             d = _mj_data(e, traj, t, b)
@@ -254,15 +265,15 @@ def test_run_gaps_reward_equals_dm_control_formula(name):
             assert traj.done[t, b] == max(float(low), traj.metrics["physics_nan"][t, b])
 
 
-@pytest.mark.parametrize("name", by_env(["rodent_escape_bowl", "ant_escape_bowl"]))
-def test_escape_reward_equals_dm_control_formula(name):
+@pytest.mark.parametrize("name,impl", by_env(["rodent_escape_bowl", "ant_escape_bowl"], BOTH))
+def test_escape_reward_equals_dm_control_formula(name, impl):
     from dm_control.utils import rewards as dmc_rewards
 
-    e = env(name)
+    e = env(name, impl)
     m = e.mj_model
     r = e.config.bowl.half_size
     dev = np.cos(np.deg2rad(30))
-    _, traj, _ = random_rollout(name)
+    _, traj, _ = random_rollout(name, impl)
     rodent = name.startswith("rodent")
     for b in range(batch_size(name)):
         for t in SAMPLE_T:
@@ -415,3 +426,44 @@ def test_contact_termination_on_a_non_foot_contact():
             mujoco.mj_step(m, d)
         results[pose] = float(e.failed(mjx.put_data(m, d)))
     assert results == {"upright": 0.0, "on_its_back": 1.0}
+
+
+# --- MuJoCo C physics (impl c) against MJX from the same states ---------------------------------
+PARITY = {  # name: (qpos m/rad, qvel relative to its largest magnitude, reward relative to its scale)
+    "ant_run": None,
+    "rodent_run": None,
+    "rodent_run_gaps": None,
+    "rodent_escape_bowl": None,
+    "humanoid_run": None,
+}
+
+
+@pytest.mark.parametrize("name,impl", by_env(list(PARITY)))
+def test_c_and_mjx_agree_from_the_same_states(name, impl):
+    """One control step of MuJoCo C from states of MJX's rollout (mid-episode: feet on the floor,
+    on the gaps' moving platforms, on the bowl's heightfield) lands where MJX's next step did,
+    within the tolerances README states; the difference is that of the two contact solvers."""
+    ec = env(name, "c")
+    s0, traj, actions = random_rollout(name)
+    ts = np.asarray([t for t in SAMPLE_T if t + 1 < STEPS])
+    at = lambda tree, t: jax.tree.map(lambda x: x[t], tree)  # noqa: E731
+    keep = ("time", "qpos", "qvel", "act", "qacc_warmstart", "mocap_pos")
+    states = at(traj, ts)  # (T, B, ...)
+    data = jax.jit(jax.vmap(jax.vmap(lambda f: ec.forward(ec.make_data(**f)))))(
+        {k: jp.asarray(states.data[k]) for k in keep}
+    )
+    nxt = jax.device_get(jax.jit(jax.vmap(jax.vmap(ec.step)))(states.replace(data=data), actions[ts + 1]))
+    ref = at(traj, ts + 1)
+    ok = (ref.metrics["physics_nan"] == 0) & (ref.done == 0) & (states.done == 0)
+    dq = np.abs(nxt.data.qpos - ref.data["qpos"]).max(-1)[ok]
+    dv = (np.abs(nxt.data.qvel - ref.data["qvel"]).max(-1) / np.maximum(1, np.abs(ref.data["qvel"]).max(-1)))[ok]
+    scale = max(1.0, float(np.abs(traj.reward).max()))
+    dr = np.abs(nxt.reward - ref.reward)[ok] / scale
+    print(
+        name,
+        f"n={ok.sum()} qpos max {dq.max():.3g} med {np.median(dq):.3g}; qvel rel max {dv.max():.3g} "
+        f"med {np.median(dv):.3g}; reward rel max {dr.max():.3g} med {np.median(dr):.3g}",
+    )
+    assert ok.sum() >= 4
+    tol = PARITY[name]
+    assert tol is None or (dq.max() < tol[0] and dv.max() < tol[1] and dr.max() < tol[2])

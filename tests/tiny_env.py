@@ -5,7 +5,6 @@ import dataclasses
 import jax
 import jax.numpy as jp
 import mujoco
-from mujoco import mjx
 
 from vnl.envs import registry
 from vnl.envs.base import Env, State
@@ -29,17 +28,18 @@ class PointConfig:
     episode_length: int = 40
     target: float = 1.0
     blow_up_above: float = 2.0  # an action above this overflows the physics (never, by default)
+    impl: str = "jax"  # physics (vnl.physics): jax or c
 
 
 class PointMass(Env):
     """obs = (x − target, v); reward = −|x − target| per step."""
 
     def __init__(self, config: PointConfig) -> None:
-        super().__init__(config, mujoco.MjModel.from_xml_string(XML), n_substeps=2)
+        super().__init__(config, mujoco.MjModel.from_xml_string(XML), n_substeps=2, impl=config.impl)
 
     def reset(self, rng: jax.Array) -> State:
         x0 = jax.random.uniform(rng, (1,), minval=-0.2, maxval=0.2)
-        data = mjx.forward(self.mjx_model, mjx.make_data(self.mjx_model).replace(qpos=x0))
+        data = self.forward(self.make_data(qpos=x0))
         zero = jp.zeros(())
         return State(data, self._obs(data), zero, zero, {"reward/distance": zero, "physics_nan": zero}, {})
 
@@ -52,7 +52,7 @@ class PointMass(Env):
         metrics = {**state.metrics, "reward/distance": reward, "physics_nan": blew_up}
         return state.replace(data=data, obs=self._obs(data), reward=reward, done=blew_up, metrics=metrics)
 
-    def _obs(self, data: mjx.Data) -> jax.Array:
+    def _obs(self, data) -> jax.Array:
         return jp.stack([data.qpos[0] - self.config.target, data.qvel[0]]).astype(jp.float32)
 
 
