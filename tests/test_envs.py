@@ -429,20 +429,30 @@ def test_contact_termination_on_a_non_foot_contact():
 
 
 # --- MuJoCo C physics (impl c) against MJX from the same states ---------------------------------
-PARITY = {  # name: (qpos m/rad, qvel relative to its largest magnitude, reward relative to its scale)
-    "ant_run": None,
-    "rodent_run": None,
-    "rodent_run_gaps": None,
-    "rodent_escape_bowl": None,
-    "humanoid_run": None,
-}
+# One control step of C vs MJX from the same mid-episode states of MJX's random-action rollout
+# (2-4 envs x 7 times), measured 2026-11-23 (median / max over states): qpos (m or rad), qvel
+# difference relative to the state's largest |qvel|, reward difference relative to the rollout's
+# largest |reward|:
+#   ant_run             0.0009 / 0.014   0.017 / 0.098   0.0014 / 0.018
+#   rodent_run          0.0070 / 0.043   0.089 / 1.0     0.0010 / 0.0099
+#   rodent_run_gaps     0.0009 / 0.087   0.045 / 1.2     0      / 2e-7
+#   rodent_escape_bowl  0.0022 / 0.28    0.11  / 1.0     2e-6   / 2e-4
+#   humanoid_run        9e-6   / 0.0098  3e-4  / 0.086   2e-7   / 2e-4
+# The two differ in their contact solvers (MJX's and MuJoCo's Newton with 2-4 iterations, and
+# their collision routines); with 50 iterations the rat's differences shrink (qvel median 1.6% ->
+# 1.3%, max 20% -> 10% from C's states). A random-action rat kicking against joint limits and the
+# floor is the worst case. Tolerances: medians at ~2-3x, maxima at ~2x the measured values.
+MEDIAN_TOL = (0.02, 0.25, 0.01)
+MAX_TOL = (0.6, 2.5, 0.05)
 
 
-@pytest.mark.parametrize("name,impl", by_env(list(PARITY)))
+@pytest.mark.parametrize(
+    "name,impl", by_env(["ant_run", "rodent_run", "rodent_run_gaps", "rodent_escape_bowl", "humanoid_run"])
+)
 def test_c_and_mjx_agree_from_the_same_states(name, impl):
     """One control step of MuJoCo C from states of MJX's rollout (mid-episode: feet on the floor,
     on the gaps' moving platforms, on the bowl's heightfield) lands where MJX's next step did,
-    within the tolerances README states; the difference is that of the two contact solvers."""
+    within the tolerances above (README, Physics on a CPU)."""
     ec = env(name, "c")
     s0, traj, actions = random_rollout(name)
     ts = np.asarray([t for t in SAMPLE_T if t + 1 < STEPS])
@@ -455,15 +465,11 @@ def test_c_and_mjx_agree_from_the_same_states(name, impl):
     nxt = jax.device_get(jax.jit(jax.vmap(jax.vmap(ec.step)))(states.replace(data=data), actions[ts + 1]))
     ref = at(traj, ts + 1)
     ok = (ref.metrics["physics_nan"] == 0) & (ref.done == 0) & (states.done == 0)
+    assert ok.sum() >= 8
     dq = np.abs(nxt.data.qpos - ref.data["qpos"]).max(-1)[ok]
     dv = (np.abs(nxt.data.qvel - ref.data["qvel"]).max(-1) / np.maximum(1, np.abs(ref.data["qvel"]).max(-1)))[ok]
-    scale = max(1.0, float(np.abs(traj.reward).max()))
-    dr = np.abs(nxt.reward - ref.reward)[ok] / scale
-    print(
-        name,
-        f"n={ok.sum()} qpos max {dq.max():.3g} med {np.median(dq):.3g}; qvel rel max {dv.max():.3g} "
-        f"med {np.median(dv):.3g}; reward rel max {dr.max():.3g} med {np.median(dr):.3g}",
-    )
-    assert ok.sum() >= 4
-    tol = PARITY[name]
-    assert tol is None or (dq.max() < tol[0] and dv.max() < tol[1] and dr.max() < tol[2])
+    dr = np.abs(nxt.reward - ref.reward)[ok] / max(1.0, float(np.abs(traj.reward).max()))
+    measured = [(float(np.median(x)), float(x.max())) for x in (dq, dv, dr)]
+    print(name, "median/max of qpos, qvel (rel), reward (rel) differences:", measured)
+    for (median, worst), median_tol, max_tol in zip(measured, MEDIAN_TOL, MAX_TOL, strict=True):
+        assert median < median_tol and worst < max_tol, measured
