@@ -33,6 +33,7 @@ from pathlib import Path
 import jax
 
 from vnl.envs import registry
+from vnl.physics import c_physics
 from vnl.train import config as train_config
 from vnl.train import ppo
 
@@ -76,14 +77,19 @@ def compare_physics(env: str, steps: int, repeats: int) -> None:
             def say(text: str, lines: list[str] = lines, t: float = t) -> None:
                 lines.append(f"{time.time() - t:.1f} {text}")
 
+            physics0 = c_physics.host_seconds()
             with tempfile.TemporaryDirectory() as d:
                 result = ppo.train(cfg, Path(d) / "run", say=say)
-            ready = next(float(x.split()[0]) for x in lines if "compiled and ready" in x)
+            physics = c_physics.host_seconds() - physics0
+            ready = float(next(x for x in lines if "compiled and ready" in x).split()[0])
+            after_compile = time.time() - t - ready
             sps = [r["env_steps_per_sec"] for r in result.records if r["env_steps_per_sec"] > 0]
             speed[impl].append(statistics.median(sps))
+            share = f"; MuJoCo C steps: {100 * physics / after_compile:.0f}% of the time after compiling"
+            share = share if impl == "c" else ""
             print(
                 f"  {impl}: {cfg.ppo.num_envs} envs, per-epoch env steps/s {', '.join(f'{s:,.0f}' for s in sps)}; "
-                f"first training step after {ready:.0f} s; wall time {time.time() - t:.0f} s",
+                f"first training step after {ready:.0f} s; wall time {time.time() - t:.0f} s{share}",
                 flush=True,
             )
     ratios = sorted(c / j for c, j in zip(speed["c"], speed["jax"], strict=True))

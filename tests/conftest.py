@@ -2,6 +2,7 @@
 
 import ctypes.util
 import os
+import tempfile
 
 import pytest
 
@@ -11,6 +12,10 @@ if "MUJOCO_GL" not in os.environ:
         os.environ["MUJOCO_GL"] = "egl"
     elif ctypes.util.find_library("OSMesa"):
         os.environ["MUJOCO_GL"] = "osmesa"
+
+# `vnl` commands run by the tests keep compiled programs in a cache of this test session (one per
+# xdist worker), not in the user's ~/.cache/vnl/jax.
+os.environ["VNL_COMPILE_CACHE"] = tempfile.mkdtemp(prefix="vnl-test-compile-cache-")
 
 
 @pytest.fixture(scope="session", autouse=True)

@@ -306,3 +306,60 @@ def test_second_process_loads_the_c_physics_program_from_the_cache(tmp_path):
     assert runs[0]["hits"] == 0 and runs[1]["hits"] >= 1
     assert runs[0]["sum"] == runs[1]["sum"]  # the cached program computes the same rollout
     assert any((tmp_path / "cache").glob("jit_rollout-*"))
+
+
+# --- training with C physics: exact resume, two devices --------------------------------------------
+
+TINY_C = ["--preset", "tiny", "--no-video", "--no-compile-cache", "--set", "env_config.impl=c"]
+
+
+def _vnl(*args, env=None, timeout=900):
+    return subprocess.run(
+        [sys.executable, "-m", "vnl", *map(str, args)],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        env=env,
+        timeout=timeout,
+    )
+
+
+@pytest.mark.xdist_group("ant_run-c")
+def test_resume_with_c_physics_is_bit_exact(tmp_path):
+    """ant_run on MuJoCo C: K steps, then --resume to 2K, equals 2K steps in one go, bit for bit
+    (parameters, optimizer state, env states, keys and metrics)."""
+    from vnl.io import checkpoint
+    from vnl.io import metrics as metrics_io
+
+    k = 2048
+    ref, part = tmp_path / "ref", tmp_path / "part"
+    # Both runs have epochs of k steps (evaluations at 0, k, 2k), as a resumed run keeps its own.
+    p = _vnl("train", "ant_run", *TINY_C, "--steps", 2 * k, "--set", "ppo.num_evals=3", "--out", ref)
+    assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-2000:]
+    assert "physics MuJoCo C" in p.stdout
+    p = _vnl("train", "ant_run", *TINY_C, "--steps", k, "--out", part)
+    assert p.returncode == 0, p.stderr[-2000:]
+    p = _vnl("train", "--resume", part, "--steps", 2 * k, "--no-compile-cache", "--set", "env_config.threads=1")
+    assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-2000:]
+    assert checkpoint.steps(ref) == checkpoint.steps(part) == [0, k, 2 * k]
+    _, a, _ = checkpoint.load_train_state(ref)
+    _, b, _ = checkpoint.load_train_state(part)
+    assert a.keys() == b.keys() and any(".env" in key and "qacc_warmstart" in key for key in a)
+    for key in a:
+        np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+    timing = ("wall_time", "env_steps_per_sec", "training/sps", "training/walltime", "eval/walltime", "eval/sps")
+    timing += ("eval/epoch_eval_time",)
+    untimed = lambda rs: [{k: v for k, v in r.items() if k not in timing} for r in rs]  # noqa: E731
+    records = [metrics_io.read(run / "metrics.jsonl") for run in (ref, part)]
+    assert [r["step"] for r in records[1]] == [0, k, 2 * k] and untimed(records[0]) == untimed(records[1])
+
+
+def test_trains_with_c_physics_on_two_devices(tmp_path):
+    env = {**__import__("os").environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
+    p = _vnl("train", "ant_run", *TINY_C, "--out", tmp_path / "run", env=env)
+    assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-2000:]
+    assert "on 2 cpu device(s)" in p.stdout and "physics MuJoCo C" in p.stdout
+    from vnl.io import checkpoint
+
+    _, params = checkpoint.load(tmp_path / "run")
+    assert all(np.isfinite(np.asarray(x)).all() for x in jax.tree.leaves(params))

@@ -78,9 +78,11 @@ def rollout(env: Env, policy: Policy, rng: jax.Array, episodes: int, steps: int)
 def summarize(r: Rollout, dt: float) -> dict[str, Any]:
     """Per-episode statistics (mean and std over episodes) of a rollout.
 
-    Sums (reward and each `reward/<term>`) run over each episode's active steps; forward distance
-    is the root's x displacement from reset to the episode's last active step; mean forward
-    velocity is that distance over the episode's duration.
+    Sums (reward, each `reward/<term>` and each task measure `measure/<name>`, reported as
+    `<name>`) run over each episode's active steps; forward distance is the root's x displacement
+    from reset to the episode's last active step; mean forward velocity is that distance over the
+    episode's duration; `upright_fraction` is the time upright over the rollout's full length;
+    `time_to_escape` is the time in the bowl over the episodes that left it (NaN if none did).
     """
     mask = r.active
     lengths = r.lengths
@@ -99,9 +101,22 @@ def summarize(r: Rollout, dt: float) -> dict[str, Any]:
         per_episode["mean_forward_velocity"] = distance / np.maximum(lengths * dt, 1e-9)
     if "physics_nan" in r.metrics:
         per_episode["physics_nan"] = (r.metrics["physics_nan"] * mask).sum(1)
+    # Task measures: per-step increments whose episode sums say what the animal did.
+    for k, v in r.metrics.items():
+        if k.startswith("measure/"):
+            per_episode[k.removeprefix("measure/")] = (v * mask).sum(1)
+    if "upright_time" in per_episode:
+        per_episode["upright_fraction"] = per_episode["upright_time"] / (r.reward.shape[1] * dt)
     out: dict[str, Any] = {"episodes": int(len(lengths))}
     for k, v in per_episode.items():
         out[k] = {"mean": float(np.mean(v)), "std": float(np.std(v))}
+    if "escaped" in per_episode:  # time to leave the bowl, over the episodes that left it
+        left = per_episode["escaped"] > 0
+        times = per_episode["time_in_bowl"][left]
+        out["time_to_escape"] = {
+            "mean": float(times.mean()) if left.any() else float("nan"),
+            "std": float(times.std()) if left.any() else float("nan"),
+        }
     return out
 
 

@@ -172,6 +172,14 @@ def place_window(layout: Layout, x: jax.Array, params: GapsParams) -> jax.Array:
     return jp.stack([x_c, jp.zeros_like(x_c), z_c], axis=-1)
 
 
+def gaps_behind(layout: Layout, x: jax.Array) -> jax.Array:
+    """Number of gaps whose far edge (the start of the platform after the gap) is at or before
+    `x`: the gaps a walker at `x` has crossed, counted from the corridor's start. Float32 scalar."""
+    start, end = layout.start, layout.start + layout.length
+    gap = jp.concatenate([jp.zeros(1, bool), start[1:] > end[:-1] + 1e-6]) & jp.isfinite(start)
+    return jp.sum(gap & (start <= x)).astype(jp.float32)
+
+
 def layout_numpy(layout: Layout) -> list[tuple[float, float]]:
     """(start, end) of each platform, for tests and plots."""
     s, ln = np.asarray(layout.start), np.asarray(layout.length)

@@ -16,16 +16,22 @@ from brax.envs.wrappers import training as brax_training
 
 from vnl.envs.base import State
 
+EPISODE_KEYS = ("steps", "truncation")
+"""`state.info` entries of Brax's EpisodeWrapper (the episode's own bookkeeping)."""
+
 
 class AutoResetWrapper(brax_training.Wrapper):
-    """Resets finished episodes to their first state (the state drawn at `reset`)."""
+    """Resets finished episodes to their first state (the state drawn at `reset`): physics data,
+    observation and the task's own `info` entries (a Brax pipeline's state, the furthest point
+    reached, ...)."""
 
     def reset(self, rng: jax.Array) -> State:
         state = self.env.reset(rng)
         state.info["first_data"] = state.data
         state.info["first_obs"] = state.obs
-        if "pipeline" in state.info:  # a Brax pipeline's own state (vnl.envs.brax_physics)
-            state.info["first_pipeline"] = state.info["pipeline"]
+        state.info["first_info"] = {
+            k: v for k, v in state.info.items() if k not in (*EPISODE_KEYS, "first_data", "first_obs")
+        }
         return state
 
     def step(self, state: State, action: jax.Array) -> State:
@@ -45,8 +51,8 @@ class AutoResetWrapper(brax_training.Wrapper):
 
         data = jax.tree.map(where_done, state.info["first_data"], state.data)
         obs = jax.tree.map(where_done, state.info["first_obs"], state.obs)
-        if "pipeline" in state.info:
-            state.info["pipeline"] = jax.tree.map(where_done, state.info["first_pipeline"], state.info["pipeline"])
+        first = state.info["first_info"]
+        state.info.update({k: jax.tree.map(where_done, v, state.info[k]) for k, v in first.items()})
         return state.replace(data=data, obs=obs)
 
 

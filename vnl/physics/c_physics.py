@@ -27,6 +27,7 @@ from __future__ import annotations
 import hashlib
 import os
 import threading
+import time
 from typing import Any
 
 import jax
@@ -93,6 +94,12 @@ _SETCONST_INPUTS = frozenset(mujoco.MjModel._setconst_inputs)
 # One call at a time per process: each call uses all of `threads`; calls from several devices
 # (pmap) take turns instead of oversubscribing the cores.
 _CALL_LOCK = threading.Lock()
+_HOST_SECONDS = [0.0]
+
+
+def host_seconds() -> float:
+    """Wall time this process has spent in MuJoCo C steps (for benchmarks: physics' share)."""
+    return _HOST_SECONDS[0]
 
 
 @struct.dataclass
@@ -286,6 +293,7 @@ class CPhysics:
         self, nstep: int, names: tuple[str, ...], inputs: list[np.ndarray], outputs: list[np.ndarray]
     ) -> None:
         with _CALL_LOCK:
+            t = time.perf_counter()
             batch = self._load(names, inputs)
             warnings0 = batch.warning[:, _UNSTABLE, 1].copy()
             failed = np.zeros(batch.nsim, bool)
@@ -296,6 +304,7 @@ class CPhysics:
             failed |= (batch.warning[:, _UNSTABLE, 1] > warnings0).any(axis=1)
             failed |= self._write_outputs(batch, outputs)
             outputs[-1].reshape(-1)[...] = failed
+            _HOST_SECONDS[0] += time.perf_counter() - t
 
     def _host_forward(self, names: tuple[str, ...], inputs: list[np.ndarray], outputs: list[np.ndarray]) -> None:
         with _CALL_LOCK:

@@ -24,6 +24,9 @@ from vnl.errors import VnlError
 from vnl.walkers import mjx_compat
 from vnl.walkers.base import Walker
 
+UPRIGHT_COS = float(np.cos(np.deg2rad(45.0)))
+"""A walker counts as upright while its root body's z-axis is within 45° of vertical."""
+
 
 @dataclasses.dataclass(frozen=True)
 class WalkerTaskConfig:
@@ -301,6 +304,10 @@ class WalkerTask(Env):
         ang, lin = data.cvel[r, :3], data.cvel[r, 3:]
         lin = lin + jp.cross(ang, data.xpos[r] - data.subtree_com[self._body_rootid[r]])
         return rot.T @ lin, rot.T @ ang
+
+    def is_upright(self, data: mjx.Data) -> jax.Array:
+        """1.0 when the root body's z-axis is within 45° of vertical (the `upright_time` measure)."""
+        return (data.xmat[self._root, 2, 2] >= UPRIGHT_COS).astype(jp.float32)
 
     def egocentric(self, data: mjx.Data, points: jax.Array) -> jax.Array:
         """World points (n, 3) -> the root body's frame, shape (n, 3)."""

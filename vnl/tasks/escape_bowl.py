@@ -11,6 +11,10 @@ Reward = upright × escape (dm_control `rewards.tolerance`, linear sigmoid, valu
 The product is `metrics["reward/escape"]`; its two factors are logged as `escape` and `upright`.
 No termination but physics blow-ups; 20 s episodes. Observation: proprioception + `origin`,
 the bowl centre in the root body's frame.
+
+Task measures (`metrics["measure/..."]`, summed over an episode): `escaped`, 1 if the head (the
+root for other walkers) got at least R from the centre (out of the bowl: the escape factor is
+1 there), and `time_in_bowl`, the seconds until then (the whole episode if it never got out).
 """
 
 from __future__ import annotations
@@ -111,8 +115,10 @@ class EscapeBowl(WalkerTask):
             "upright": zero,
             "distance_from_origin": jp.linalg.norm(self._head_pos(data)),
             "physics_nan": zero,
+            "measure/escaped": zero,
+            "measure/time_in_bowl": zero,
         }
-        return State(data, self._obs(data), zero, zero, metrics, {"rng": rng})
+        return State(data, self._obs(data), zero, zero, metrics, {"rng": rng, "escaped": zero})
 
     def step(self, state: State, action: jax.Array) -> State:
         action = self.sanitize_action(action)
@@ -120,6 +126,9 @@ class EscapeBowl(WalkerTask):
         ok = 1.0 - blew_up
         escape, upright = self.reward_factors(data)
         reward = escape * upright * ok
+        before = state.info["escaped"]
+        out = (jp.linalg.norm(self._head_pos(data)) >= self._config.bowl.half_size) & (ok > 0)
+        escaped = jp.maximum(before, out.astype(jp.float32))
         metrics = {
             **state.metrics,
             "reward/escape": reward,
@@ -127,8 +136,11 @@ class EscapeBowl(WalkerTask):
             "upright": upright * ok,
             "distance_from_origin": jp.linalg.norm(self._head_pos(data)) * ok,
             "physics_nan": blew_up,
+            "measure/escaped": escaped - before,
+            "measure/time_in_bowl": self.dt * (1.0 - before),
         }
-        return state.replace(data=data, obs=self._obs(data), reward=reward, done=blew_up, metrics=metrics)
+        info = {**state.info, "escaped": escaped}
+        return state.replace(data=data, obs=self._obs(data), reward=reward, done=blew_up, metrics=metrics, info=info)
 
     def reward_factors(self, data: mjx.Data) -> tuple[jax.Array, jax.Array]:
         """(escape, upright), each a scalar in [0, 1]."""

@@ -10,7 +10,9 @@ already scaled, as `metrics["reward/<term>"]`, so they sum to the reward):
   ctrl_cost = −ctrl_cost_weight · |action|²
 
 The episode ends when unhealthy (if `terminate_when_unhealthy`) or when the physics blows up
-(NaN/Inf state, counted in `metrics["physics_nan"]`).
+(NaN/Inf state, counted in `metrics["physics_nan"]`). Task measure (`metrics["measure/..."]`,
+summed over an episode): `upright_time`, the seconds the walker was healthy with its root's
+z-axis within 45° of vertical.
 """
 
 from __future__ import annotations
@@ -202,6 +204,7 @@ class Run(WalkerTask):
             "x_velocity": zero,
             "y_velocity": zero,
             "physics_nan": zero,
+            "measure/upright_time": zero,
         }
         info = {"rng": rng}
         if self._brax is not None:
@@ -254,6 +257,8 @@ class Run(WalkerTask):
             "x_velocity": velocity[0] * ok,
             "y_velocity": velocity[1] * ok,
             "physics_nan": blew_up,
+            # Seconds upright and healthy (summed over an episode: the time it stayed up).
+            "measure/upright_time": self.dt * healthy * self.is_upright(data) * ok,
         }
         return state.replace(data=data, obs=self._obs(data), reward=reward, done=done, metrics=metrics, info=info)
 

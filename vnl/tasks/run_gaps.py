@@ -12,6 +12,10 @@ drops below `terminate_at_height` (a fall into a gap or off the corridor), when 
 touches a platform and `contact_termination` is on, or when the physics blows up. Every
 `reset(rng)` draws a new platform/gap layout (`vnl.arenas.gaps`), different in every vmapped
 environment, without recompiling.
+
+Task measures (`metrics["measure/..."]`, summed over an episode): `distance`, how far along the
+corridor the root got beyond its spawn point (m), and `gaps_crossed`, the gaps whose far edge it
+passed.
 """
 
 from __future__ import annotations
@@ -141,8 +145,10 @@ class RunGaps(WalkerTask):
             "distance": zero,
             "fell": zero,
             "physics_nan": zero,
+            "measure/distance": zero,
+            "measure/gaps_crossed": zero,
         }
-        info = {"rng": rng, "layout": layout}
+        info = {"rng": rng, "layout": layout, "max_x": jp.float32(cfg.spawn_x)}
         return State(data, self.proprioception(data), zero, zero, metrics, info)
 
     def step(self, state: State, action: jax.Array) -> State:
@@ -157,6 +163,10 @@ class RunGaps(WalkerTask):
         fell = self.failed(data)
         reward = velocity * ok
         done = jp.maximum(fell, blew_up)
+        # Progress: the furthest point the root has reached along the corridor, and the gaps behind it.
+        max_x = state.info["max_x"]
+        new_max = jp.where(ok > 0, jp.maximum(max_x, data.xpos[self._root, 0]), max_x)
+        crossed = gaps.gaps_behind(layout, new_max) - gaps.gaps_behind(layout, max_x)
         metrics = {
             **state.metrics,
             "reward/velocity": reward,
@@ -165,8 +175,12 @@ class RunGaps(WalkerTask):
             "distance": (data.xpos[self._root, 0] - cfg.spawn_x) * ok,
             "fell": fell,
             "physics_nan": blew_up,
+            "measure/distance": new_max - max_x,
+            "measure/gaps_crossed": crossed,
         }
-        return state.replace(data=data, obs=self.proprioception(data), reward=reward, done=done, metrics=metrics)
+        info = {**state.info, "max_x": new_max}
+        obs = self.proprioception(data)
+        return state.replace(data=data, obs=obs, reward=reward, done=done, metrics=metrics, info=info)
 
     def failed(self, data: mjx.Data) -> jax.Array:
         """1.0 if the episode fails: fell below `terminate_at_height` or (optionally) a non-foot

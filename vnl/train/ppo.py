@@ -187,12 +187,15 @@ def _fmt_time(seconds: float) -> str:
     return f"{seconds // 60}:{seconds % 60:02d}"
 
 
-def make_record(step: int, wall_time: float, brax_metrics: dict[str, Any]) -> dict[str, Any]:
+def make_record(
+    step: int, wall_time: float, brax_metrics: dict[str, Any], episode_seconds: float | None = None
+) -> dict[str, Any]:
     """One metrics.jsonl record: Brax's eval/training metrics plus derived quantities.
 
     `eval/episode_<metric>` are per-episode sums (Brax's convention), e.g.
-    `eval/episode_reward/forward`; `eval/mean_forward_velocity` is the episode's summed x velocity
-    over its length, in m/s.
+    `eval/episode_reward/forward` and the task measures `eval/episode_measure/<name>`;
+    `eval/mean_forward_velocity` is the episode's summed x velocity over its length, in m/s;
+    `eval/upright_fraction` is the time upright over the full episode (`episode_seconds`).
     """
     record: dict[str, Any] = {"step": int(step), "wall_time": round(wall_time, 3)}
     for k, v in brax_metrics.items():
@@ -204,6 +207,8 @@ def make_record(step: int, wall_time: float, brax_metrics: dict[str, Any]) -> di
     length = record.get("eval/avg_episode_length")
     if length and "eval/episode_x_velocity" in record:
         record["eval/mean_forward_velocity"] = record["eval/episode_x_velocity"] / length
+    if episode_seconds and "eval/episode_measure/upright_time" in record:
+        record["eval/upright_fraction"] = record["eval/episode_measure/upright_time"] / episode_seconds
     return record
 
 
@@ -389,6 +394,7 @@ def _run(
     epoch_steps = restored[2]["training_steps_per_epoch"] if restored else None
     loop = PPOLoop(env, config, training_steps_per_epoch=epoch_steps)
     stop = threading.Event()
+    episode_seconds = loop.episode_length * env.dt
     records: list[dict[str, Any]] = []
     wall_offset = 0.0
     if restored:
@@ -481,7 +487,7 @@ def _run(
                 state = loop.init(config.seed)
                 loop.compile(state)
                 state, metrics = loop.evaluate(state, {}) if lead else (state, {})
-                record = make_record(0, time.time() - t_start, metrics)
+                record = make_record(0, time.time() - t_start, metrics, episode_seconds)
                 save(0, state, record, force=True)
                 log(record)
             say(f"[vnl] compiled and ready {time.time() - t_start:.0f} s after start; training")
@@ -496,7 +502,7 @@ def _run(
                 state, training_metrics = loop.epoch(state)
                 step = loop.env_steps(state)
                 state, metrics = loop.evaluate(state, training_metrics) if lead else (state, training_metrics)
-                record = make_record(step, wall_offset + time.time() - t_start, metrics)
+                record = make_record(step, wall_offset + time.time() - t_start, metrics, episode_seconds)
                 stopping = distributed.any_process(stop.is_set())
                 save(step, state, record, force=stopping)
                 log(record)

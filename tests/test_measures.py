@@ -1,0 +1,95 @@
+"""Task measures (`metrics["measure/..."]`): gaps crossed and distance in the corridor, leaving
+the bowl, time upright; their episode sums in `vnl eval`'s summary and metrics records."""
+
+import jax
+import jax.numpy as jp
+import numpy as np
+import pytest
+
+import vnl
+from vnl.arenas import gaps
+from vnl.rollout import Rollout, summarize
+from vnl.train.ppo import make_record
+
+
+def test_gaps_behind_counts_the_gaps_whose_far_edge_was_passed():
+    # platforms [0, 2], [2, 3] (no gap), [3.5, 4.5], [5, 6], then unused slots
+    start = jp.array([0.0, 2.0, 3.5, 5.0, jp.inf])
+    length = jp.array([2.0, 1.0, 1.0, 1.0, 1.0])
+    layout = gaps.Layout(start=start, length=length)
+    for x, n in [(-1.0, 0), (1.0, 0), (2.5, 0), (3.4, 0), (3.5, 1), (4.9, 1), (5.0, 2), (100.0, 2)]:
+        assert float(gaps.gaps_behind(layout, jp.float32(x))) == n, x
+
+
+@pytest.mark.xdist_group("rodent_run_gaps-c")
+def test_a_scripted_walk_through_the_corridor_counts_each_gap_once():
+    """The rat placed on platform after platform (forwards, then back): gaps_crossed sums to the
+    number of gaps between its spawn point and the furthest platform, distance to that advance."""
+    env = vnl.make("rodent_run_gaps", impl="c")
+    state = jax.jit(env.reset)(jax.random.PRNGKey(4))
+    layout = state.info["layout"]
+    platforms = gaps.layout_numpy(layout)
+    spawn = env.config.spawn_x
+    ahead = [(a, b) for a, b in platforms if a > spawn][:6]
+    targets = [(a + b) / 2 for a, b in ahead] + [ahead[1][0] + 0.01]  # the last one walks back
+    root = env._free_qpos  # the root's x in qpos
+    step = jax.jit(env.step)
+    crossed = distance = 0.0
+    for x in targets:
+        qpos = state.data.qpos.at[root].set(x)
+        state = state.replace(data=env.forward(state.data.replace(qpos=qpos, qvel=jp.zeros_like(state.data.qvel))))
+        state = step(state, jp.zeros(env.action_size))
+        crossed += float(state.metrics["measure/gaps_crossed"])
+        distance += float(state.metrics["measure/distance"])
+    furthest = max(targets)
+    expected = float(gaps.gaps_behind(layout, jp.float32(furthest)) - gaps.gaps_behind(layout, jp.float32(spawn)))
+    n_gaps = sum(
+        1
+        for (a0, b0), (a1, _) in zip(platforms, platforms[1:], strict=False)
+        if spawn < a1 <= furthest and a1 > b0 + 1e-6
+    )
+    assert crossed == expected == n_gaps >= 3
+    assert distance == pytest.approx(furthest - spawn, abs=0.1)  # (the rat moves a little in each step)
+
+
+@pytest.mark.xdist_group("ant_escape_bowl-c")
+def test_a_body_placed_outside_the_bowl_counts_as_escaped_once():
+    env = vnl.make("ant_escape_bowl", impl="c")
+    state = jax.jit(env.reset)(jax.random.PRNGKey(0))
+    step = jax.jit(env.step)
+    state = step(state, jp.zeros(env.action_size))
+    assert float(state.metrics["measure/escaped"]) == 0
+    assert float(state.metrics["measure/time_in_bowl"]) == pytest.approx(env.dt)
+    r = env.config.bowl.half_size
+    qpos = state.data.qpos.at[0].set(r + 1.0).at[2].set(1.0)  # the root 1 m beyond the rim, 1 m up
+    state = state.replace(data=env.forward(state.data.replace(qpos=qpos)))
+    state = step(state, jp.zeros(env.action_size))
+    assert float(state.metrics["measure/escaped"]) == 1  # counted at the step it got out ...
+    assert float(state.metrics["measure/time_in_bowl"]) == pytest.approx(env.dt)
+    state = step(state, jp.zeros(env.action_size))
+    assert float(state.metrics["measure/escaped"]) == 0  # ... once
+    assert float(state.metrics["measure/time_in_bowl"]) == 0
+
+
+def test_summary_and_records_derive_fractions_and_escape_times():
+    e, t = 3, 4  # episodes, steps
+    metrics = {
+        "measure/upright_time": np.array([[0.5] * 4, [0.5, 0.5, 0, 0], [0] * 4]),
+        "measure/escaped": np.array([[0, 1, 0, 0], [0, 0, 0, 0], [1, 0, 0, 0]], float),
+        "measure/time_in_bowl": np.array([[0.5, 0.5, 0, 0], [0.5] * 4, [0.5, 0, 0, 0]]),
+    }
+    r = Rollout(
+        qpos=np.zeros((e, t + 1, 1)),
+        mocap_pos=np.zeros((e, t + 1, 0, 3)),
+        reward=np.zeros((e, t)),
+        done=np.zeros((e, t)),
+        active=np.ones((e, t)),
+        metrics=metrics,
+        metrics0={},
+    )
+    s = summarize(r, dt=0.5)
+    assert s["upright_fraction"]["mean"] == pytest.approx((1.0 + 0.5 + 0.0) / 3)
+    assert s["escaped"]["mean"] == pytest.approx(2 / 3)
+    assert s["time_to_escape"]["mean"] == pytest.approx(0.75)  # (1.0 + 0.5) / 2, the escapers only
+    record = make_record(7, 1.0, {"eval/episode_measure/upright_time": 3.0}, episode_seconds=4.0)
+    assert record["eval/upright_fraction"] == 0.75
