@@ -136,6 +136,14 @@ def cmd_train(args: argparse.Namespace, gl: str | None) -> int:
     def finish(run_dir: Path) -> Path | None:
         return _final_video(run_dir, config, gl) if config.log.video else None
 
+    if args.step is not None and not args.init_from:
+        raise VnlError("--step needs --init-from RUN_DIR (to continue a run: --resume RUN_DIR --from-step N)")
+    if args.keep_optimizer and not args.init_from:
+        raise VnlError("--keep-optimizer needs --init-from RUN_DIR")
+    if args.init_from:
+        if args.resume:
+            raise VnlError("--init-from starts a new run; --resume continues one: use one of them")
+        flags["init"] = {"run": args.init_from, "step": args.step, "keep_optimizer": args.keep_optimizer}
     if args.resume:
         if args.env or args.config or args.preset or args.out:
             raise VnlError("--resume continues a run with its own config: drop ENV, --config, --preset and --out")
@@ -150,6 +158,10 @@ def cmd_train(args: argparse.Namespace, gl: str | None) -> int:
         if not args.env:
             raise VnlError("vnl train needs an ENV (see `vnl list`) or --resume RUN_DIR")
         file_values = config_lib.load_yaml(args.config) if args.config else {}
+        if args.init_from:  # the parent's networks, unless the file or --set give others
+            from vnl.train import warm_start
+
+            file_values = config_lib.merge(warm_start.parent_defaults(args.init_from), file_values)
         config = train_config.build(args.env, args.preset, file_values, args.set, flags)
         if config.log.video:
             # An unknown camera is an error now, not after training.
@@ -278,7 +290,7 @@ def cmd_plot(args: argparse.Namespace) -> int:
     from vnl.io import plot
 
     out = Path(args.out) if args.out else Path(args.run_dirs[0]) / "compare.png"
-    path = plot.compare_runs(args.run_dirs, args.metric, out)
+    path = plot.compare_runs(args.run_dirs, args.metric, out, lineage=args.lineage)
     print(f"wrote {path}")
     return 0
 
@@ -346,6 +358,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--num-envs", type=int, help="parallel environments (ppo.num_envs)")
     p.add_argument("--no-video", action="store_true", help="skip the final-policy video")
     p.add_argument("--vision", action="store_true", help="the policy also sees its egocentric camera (vision.enabled)")
+    g = p.add_argument_group("warm start (a new run that begins with another run's networks)")
+    g.add_argument(
+        "--init-from", metavar="RUN_DIR", help="start from this run's policy, value network and observation normalizer"
+    )
+    g.add_argument("--step", type=int, help="with --init-from: the parent's checkpoint step (default: newest)")
+    g.add_argument(
+        "--keep-optimizer", action="store_true", help="with --init-from: also keep its Adam state (default: fresh)"
+    )
     _cache_flags(p)
     g = p.add_argument_group("multi-host (one process per host; process 0 writes the run directory)")
     g.add_argument("--distributed", action="store_true", help="join a multi-process run detected from SLURM/MPI")
@@ -379,6 +399,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("run_dirs", nargs="+", metavar="RUN_DIR")
     p.add_argument("--metric", default="eval/episode_reward", help="e.g. episode_reward, reward/forward")
     p.add_argument("--out", help="PNG path (default <first run>/compare.png)")
+    p.add_argument(
+        "--lineage", action="store_true", help="draw warm-started runs after their parents' curves, on one step axis"
+    )
 
     p = sub.add_parser("record", help="neural recordings: activations, observations, actions, body pose")
     p.add_argument("run_dir")

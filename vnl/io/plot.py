@@ -34,12 +34,51 @@ def learning_curve(records: list[dict[str, Any]], out: str | Path, title: str = 
     ax.set_xlabel("environment steps")
     ax.set_ylabel("mean forward velocity (m/s)")
     ax.grid(alpha=0.3)
+    for ax in axes:
+        stage_lines(ax, records)
     if title:
         fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(out, dpi=100)
     plt.close(fig)
     return Path(out)
+
+
+def stage_lines(ax: Any, records: list[dict[str, Any]], offset: float = 0.0) -> None:
+    """Dotted vertical lines where a curriculum moved to its next stage (between the last
+    evaluation of one stage and the first of the next), labelled with the new stage's number."""
+    for before, after in zip(records, records[1:], strict=False):
+        a, b = before.get("curriculum/stage"), after.get("curriculum/stage")
+        if a is not None and b is not None and b != a:
+            x = offset + before["step"]
+            ax.axvline(x, color="0.4", ls=":", lw=1)
+            ax.text(x, 1.0, f" stage {int(b) + 1}", transform=ax.get_xaxis_transform(), va="top", fontsize=7)
+
+
+def lineage(run_dir: str | Path) -> list[tuple[Path, int | None]]:
+    """The runs a warm-started run descends from, oldest first, ending with the run itself:
+    [(run directory, the step its child started from; None for the run itself)].
+
+    Each run's config.yaml names its parent (`init.run`, `init.step`); a parent that was moved
+    is looked for next to its child by name. A missing parent is a `VnlError`.
+    """
+    import yaml
+
+    from vnl.errors import VnlError
+
+    chain: list[tuple[Path, int | None]] = [(Path(run_dir), None)]
+    while len(chain) < 100:
+        path = chain[0][0] / "config.yaml"
+        init = ((yaml.safe_load(path.read_text()) or {}).get("init") or {}) if path.is_file() else {}
+        if not init.get("run"):
+            return chain
+        parent = Path(init["run"])
+        if not (parent / "metrics.jsonl").is_file() and (chain[0][0].parent / parent.name / "metrics.jsonl").is_file():
+            parent = chain[0][0].parent / parent.name
+        if not (parent / "metrics.jsonl").is_file():
+            raise VnlError(f"the parent of {chain[0][0]}, {init['run']}, has no metrics.jsonl (moved or deleted?)")
+        chain.insert(0, (parent, int(init.get("step") or 0)))
+    raise VnlError(f"{run_dir}: its lineage is longer than 100 runs (a cycle of init.run?)")
 
 
 def resolve_metric(name: str, available: set[str]) -> str:
@@ -62,53 +101,50 @@ def _group_key(run_dir: Path) -> str:
     return yaml.safe_dump(cfg, sort_keys=True)
 
 
-def compare_runs(run_dirs: list[str | Path], metric: str, out: str | Path) -> Path:
+def _read_records(run_dir: Path) -> list[dict[str, Any]]:
+    from vnl.errors import VnlError
+    from vnl.io import metrics as metrics_io
+
+    path = run_dir / "metrics.jsonl"
+    if not path.is_file():
+        raise VnlError(f"{run_dir} has no metrics.jsonl; is it a vnl run directory?")
+    records = metrics_io.read(path)
+    if not records:
+        raise VnlError(f"{path} holds no records yet")
+    return records
+
+
+def _curve(records: list[dict[str, Any]], key: str, offset: float = 0.0, upto: float | None = None) -> Any:
+    """(steps + offset, values) of the records that have `key` (up to step `upto`)."""
+    import numpy as np
+
+    kept = [r for r in records if r.get(key) is not None and (upto is None or r["step"] <= upto)]
+    return np.array([offset + r["step"] for r in kept], float), np.array([r[key] for r in kept], float)
+
+
+def compare_runs(run_dirs: list[str | Path], metric: str, out: str | Path, lineage: bool = False) -> Path:
     """One PNG with `metric` against env steps for each run; runs sharing a config (seeds) are
-    drawn as their mean with a band from the lowest to the highest seed."""
+    drawn as their mean with a band from the lowest to the highest seed.
+
+    With `lineage`, each warm-started run is drawn after the runs it descends from (`lineage`):
+    each ancestor's curve (dashed) up to the step its child started from, then the run's own, on
+    one step axis; runs are not grouped by seed then.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    import numpy as np
 
-    from vnl.errors import VnlError
-    from vnl.io import metrics as metrics_io
-
-    runs = []
-    for d in map(Path, run_dirs):
-        path = d / "metrics.jsonl"
-        if not path.is_file():
-            raise VnlError(f"{d} has no metrics.jsonl; is it a vnl run directory?")
-        records = metrics_io.read(path)
-        if not records:
-            raise VnlError(f"{path} holds no records yet")
-        runs.append((d, records))
+    runs = [(d, _read_records(d)) for d in map(Path, run_dirs)]
     available = set().union(*(r.keys() for _, recs in runs for r in recs))
     key = resolve_metric(metric, available)
-    groups: dict[str, list[tuple[Path, list[dict[str, Any]]]]] = {}
-    for d, recs in runs:
-        groups.setdefault(_group_key(d), []).append((d, recs))
     fig, ax = plt.subplots(figsize=(7, 4.2))
-    for i, members in enumerate(groups.values()):
-        curves = [
-            (
-                np.array([r["step"] for r in recs if r.get(key) is not None], float),
-                np.array([r[key] for r in recs if r.get(key) is not None], float),
-            )
-            for _, recs in members
-        ]
-        curves = [(s, v) for s, v in curves if len(s)]
-        if not curves:
-            continue
-        names = ", ".join(d.name for d, _ in members)
-        if len(curves) == 1:
-            ax.plot(*curves[0], marker="o", ms=3, color=f"C{i}", label=names)
-            continue
-        grid = curves[0][0]
-        values = np.stack([np.interp(grid, s, v) for s, v in curves])
-        ax.plot(grid, values.mean(0), marker="o", ms=3, color=f"C{i}", label=f"{names} (mean of {len(curves)})")
-        ax.fill_between(grid, values.min(0), values.max(0), color=f"C{i}", alpha=0.2)
-    ax.set_xlabel("environment steps")
+    if lineage:
+        for i, (d, recs) in enumerate(runs):
+            _draw_lineage(ax, d, recs, key, f"C{i}")
+    else:
+        _draw_groups(ax, runs, key)
+    ax.set_xlabel("environment steps" + (" (from the first ancestor's start)" if lineage else ""))
     ax.set_ylabel(key)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
@@ -116,3 +152,36 @@ def compare_runs(run_dirs: list[str | Path], metric: str, out: str | Path) -> Pa
     fig.savefig(out, dpi=100)
     plt.close(fig)
     return Path(out)
+
+
+def _draw_groups(ax: Any, runs: list[tuple[Path, list[dict[str, Any]]]], key: str) -> None:
+    import numpy as np
+
+    groups: dict[str, list[tuple[Path, list[dict[str, Any]]]]] = {}
+    for d, recs in runs:
+        groups.setdefault(_group_key(d), []).append((d, recs))
+    for i, members in enumerate(groups.values()):
+        curves = [c for c in (_curve(recs, key) for _, recs in members) if len(c[0])]
+        if not curves:
+            continue
+        names = ", ".join(d.name for d, _ in members)
+        if len(curves) == 1:
+            ax.plot(*curves[0], marker="o", ms=3, color=f"C{i}", label=names)
+            stage_lines(ax, members[0][1])
+            continue
+        grid = curves[0][0]
+        values = np.stack([np.interp(grid, s, v) for s, v in curves])
+        ax.plot(grid, values.mean(0), marker="o", ms=3, color=f"C{i}", label=f"{names} (mean of {len(curves)})")
+        ax.fill_between(grid, values.min(0), values.max(0), color=f"C{i}", alpha=0.2)
+
+
+def _draw_lineage(ax: Any, run_dir: Path, records: list[dict[str, Any]], key: str, color: str) -> None:
+    """The ancestors' curves (dashed, each up to its child's starting step), then the run's."""
+    offset = 0.0
+    for ancestor, step in lineage(run_dir)[:-1]:
+        steps, values = _curve(_read_records(ancestor), key, offset, upto=step)
+        ax.plot(steps, values, ls="--", marker="o", ms=2, color=color, alpha=0.6, label=f"{ancestor.name} (parent)")
+        offset += step or 0
+        ax.axvline(offset, color=color, ls=":", lw=1)
+    ax.plot(*_curve(records, key, offset), marker="o", ms=3, color=color, label=run_dir.name)
+    stage_lines(ax, records, offset)

@@ -150,6 +150,43 @@ class LogConfig:
 
 
 @dataclasses.dataclass(frozen=True)
+class InitConfig:
+    """A warm start (`vnl train ENV --init-from RUN_DIR`): the run begins with another run's policy,
+    value network and observation normalizer (`vnl.train.warm_start`).
+
+    `step` None means the parent's newest checkpoint; the config.yaml of the new run records the
+    step used and `config_hash`, the hash of the parent's config (`warm_start.config_hash`).
+    `keep_optimizer` also takes the parent's Adam state (moments and step count); by default the
+    optimizer starts fresh.
+    """
+
+    run: str | None = None
+    step: int | None = None
+    keep_optimizer: bool = False
+    config_hash: str | None = None
+
+    def validate(self) -> None:
+        if self.run is None and (self.step is not None or self.keep_optimizer):
+            raise VnlError("init.step and init.keep_optimizer need init.run (--init-from RUN_DIR)")
+        if self.step is not None and self.step < 0:
+            raise VnlError(f"init.step must be >= 0, got {self.step}")
+
+
+@dataclasses.dataclass(frozen=True)
+class StageConfig:
+    """One stage of a curriculum: `env_config` overrides (of the run's own env_config) trained for
+    `steps` environment steps (`vnl.train.curriculum`)."""
+
+    steps: int
+    env_config: dict[str, Any] = dataclasses.field(default_factory=dict)
+    name: str | None = None
+
+    def validate(self) -> None:
+        if self.steps < 1:
+            raise VnlError(f"steps must be >= 1, got {self.steps}")
+
+
+@dataclasses.dataclass(frozen=True)
 class TrainConfig:
     """Everything that defines a training run (written to `<run>/config.yaml`).
 
@@ -166,6 +203,8 @@ class TrainConfig:
     log: LogConfig = LogConfig()
     randomize: RandomizeConfig = RandomizeConfig()  # domain randomization (vnl.envs.randomize)
     vision: VisionConfig = VisionConfig()  # pixel observations from an in-graph camera (vnl.vision)
+    init: InitConfig = InitConfig()  # warm start from another run (vnl.train.warm_start)
+    curriculum: tuple[StageConfig, ...] = ()  # stages of env_config overrides (vnl.train.curriculum)
 
     def validate(self) -> None:
         if self.preset not in PRESETS:
@@ -178,6 +217,28 @@ class TrainConfig:
             )
         if self.seed < 0:
             raise VnlError(f"seed must be >= 0, got {self.seed}")
+        self._validate_curriculum()
+
+    def _validate_curriculum(self) -> None:
+        """Every stage's env config is valid, and the stages' steps add up to ppo.num_timesteps."""
+        for i, stage in enumerate(self.curriculum):
+            try:
+                registry.env_config(self.env, config_lib.merge(self.env_config, stage.env_config))
+            except VnlError as e:
+                raise VnlError(f"curriculum[{i}].env_config: {e}") from None
+        total = sum(stage.steps for stage in self.curriculum)
+        if self.curriculum and self.ppo.num_timesteps != total:
+            raise VnlError(
+                f"with a curriculum the run's length is the sum of its stages' steps ({total:,}), but "
+                f"ppo.num_timesteps is {self.ppo.num_timesteps:,}; drop --steps / ppo.num_timesteps or change "
+                "the stages' steps"
+            )
+
+    def stage(self, index: int) -> TrainConfig:
+        """The config that curriculum stage `index` trains with: `env_config` with the stage's
+        overrides, no curriculum."""
+        overrides = self.curriculum[index].env_config
+        return dataclasses.replace(self, env_config=config_lib.merge(self.env_config, overrides), curriculum=())
 
     def make_env(self) -> Any:
         """The env this config trains: the registered env with `env_config`, seeing through
@@ -261,7 +322,22 @@ def build(
     for text in assignments or []:
         values = config_lib.merge(values, config_lib.parse_assignment(text))
     values = config_lib.merge(values, flags or {})
+    explicit = [file_values, flags or {}, *(config_lib.parse_assignment(a) for a in assignments or [])]
+    values = _curriculum_length(values, any("num_timesteps" in (v.get("ppo") or {}) for v in explicit))
     return config_lib.from_dict(TrainConfig, values)
+
+
+def _curriculum_length(values: dict[str, Any], explicit: bool) -> dict[str, Any]:
+    """With a curriculum, `ppo.num_timesteps` defaults to the sum of the stages' steps (a value
+    given explicitly is kept, and `TrainConfig.validate` says when it disagrees)."""
+    stages = values.get("curriculum")
+    if explicit or not isinstance(stages, list) or not stages:
+        return values
+    try:
+        total = sum(int(stage["steps"]) for stage in stages)
+    except (TypeError, KeyError, ValueError):
+        return values  # malformed stages: `from_dict` names the problem
+    return config_lib.merge(values, {"ppo": {"num_timesteps": total}})
 
 
 def _env_preset(env: str, preset: str) -> dict[str, Any]:

@@ -200,13 +200,16 @@ class PPOLoop:
         global_key, local_key = jax.random.split(key)
         local_key = jax.random.fold_in(local_key, 0)  # Brax's key for process 0
         local_key, key_env, eval_key = jax.random.split(local_key, 3)
-        if self.process_count > 1:
-            key_env = jax.random.fold_in(key_env, self.process_index)
-        key_envs = jax.random.split(key_env, self.local_envs)
-        key_envs = jp.reshape(key_envs, (self.n_devices, -1) + key_envs.shape[1:])
-        env_state = self._reset(key_envs)
         training = self._replicate(self.init_training(global_key))
-        return LoopState(training=training, env=env_state, key=local_key, eval_key=eval_key)
+        return LoopState(training=training, env=self.reset_envs(key_env), key=local_key, eval_key=eval_key)
+
+    def reset_envs(self, key: jax.Array) -> Any:
+        """New states of this process's training envs drawn from `key` (each process folds in its
+        index): shape (devices, num_envs / processes / devices, ...)."""
+        if self.process_count > 1:
+            key = jax.random.fold_in(key, self.process_index)
+        keys = jax.random.split(key, self.local_envs)
+        return self._reset(jp.reshape(keys, (self.n_devices, -1) + keys.shape[1:]))
 
     def init_training(self, key: jax.Array) -> TrainingState:
         """Brax's `TrainingState` before training (one copy): fresh networks drawn from `key`,
@@ -295,6 +298,15 @@ class PPOLoop:
             key=jp.asarray(restored.key),
             eval_key=jp.asarray(restored.eval_key),
         )
+
+    def training(self, state: LoopState) -> TrainingState:
+        """Brax's `TrainingState` of `state` (one copy, on the host)."""
+        return jax.device_get(_unreplicate(state.training))
+
+    def with_training(self, state: LoopState, training: TrainingState) -> LoopState:
+        """`state` with its training state replaced by `training` (one copy, host or device),
+        replicated over the local devices as the epoch expects."""
+        return state.replace(training=self._replicate(training))
 
     def params(self, state: LoopState) -> tuple[Any, Any, Any]:
         """Brax's `(normalizer_params, policy_params, value_params)` on the host."""

@@ -285,19 +285,28 @@ def train(
     run_dir: str | Path,
     say: Callable[[str], None] = print,
     finish: Callable[[Path], Path | None] | None = None,
+    progress: Callable[[dict[str, Any]], None] | None = None,
 ) -> TrainResult:
     """Trains `config.env` with Brax PPO (`vnl.train.loop`), writing everything into `run_dir`.
 
     Returns when training ends or after a stop was requested (SIGINT/SIGTERM). `finish(run_dir)`
     runs after a completed run, while the trackers are open; a path it returns (a video) is
-    uploaded to wandb when enabled.
+    uploaded to wandb when enabled. `progress(record)` is called with each metrics record (e.g. to
+    move a notebook's progress bar). With `config.init.run`, the run starts from that run's
+    networks (`vnl.train.warm_start`); its layout is checked before anything is written.
     """
-    from vnl.train import distributed
+    from vnl.train import distributed, warm_start
 
     run_dir = Path(run_dir)
     _check_devices(config)
+    parent = None
+    if config.init.run is not None:
+        parent = warm_start.load_parent(config)
+        first = config.stage(0) if config.curriculum else config  # the env the parent's networks start in
+        warm_start.check_layout(parent, first.make_env(), config.env)
+        config = warm_start.recorded(config, parent)
     distributed.on_lead(lambda: prepare_run_dir(run_dir, config))
-    return _run(config, run_dir, None, say, finish)
+    return _run(config, run_dir, None, say, finish, parent=parent, progress=progress)
 
 
 def resume(
@@ -307,6 +316,7 @@ def resume(
     flags: dict[str, Any] | None = None,
     say: Callable[[str], None] = print,
     finish: Callable[[Path], Path | None] | None = None,
+    progress: Callable[[dict[str, Any]], None] | None = None,
 ) -> TrainResult:
     """Continues the run in `run_dir` from its newest good checkpoint (or `from_step`).
 
@@ -325,7 +335,7 @@ def resume(
     step, arrays, meta = checkpoint.load_train_state(run_dir, from_step)
     if config != saved and distributed.is_lead():
         config_lib.dump_yaml(config, str(run_dir / "config.yaml"))
-    return _run(config, run_dir, (step, arrays, meta), say, finish)
+    return _run(config, run_dir, (step, arrays, meta), say, finish, progress=progress)
 
 
 def checkpoint_bytes(config: TrainConfig, env: Any) -> int:
@@ -378,12 +388,13 @@ def _run(
     restored: tuple[int, dict[str, Any], dict[str, Any]] | None,
     say: Callable[[str], None],
     finish: Callable[[Path], Path | None] | None,
+    parent: Any = None,
+    progress: Callable[[dict[str, Any]], None] | None = None,
 ) -> TrainResult:
     import jax
 
     from vnl.io import tracking
-    from vnl.train import distributed
-    from vnl.train.loop import PPOLoop
+    from vnl.train import curriculum, distributed, warm_start
 
     lead = distributed.is_lead()  # only process 0 evaluates, reports and writes
     if not lead:
@@ -392,7 +403,7 @@ def _run(
     env = config.make_env()
     distributed.on_lead(lambda: check_disk_space(run_dir, config, env))
     epoch_steps = restored[2]["training_steps_per_epoch"] if restored else None
-    loop = PPOLoop(env, config, training_steps_per_epoch=epoch_steps)
+    loop = curriculum.make_loop(env, config, epoch_steps, say)
     stop = threading.Event()
     episode_seconds = loop.episode_length * env.dt
     records: list[dict[str, Any]] = []
@@ -416,6 +427,8 @@ def _run(
         step = record["step"]
         tracker.write(record)
         records.append(record)
+        if progress is not None:
+            progress(record)
         if config.log.progress:
             elapsed = time.time() - t_start
             done = (step - first_step) / max(p.num_timesteps - first_step, 1)
@@ -423,7 +436,8 @@ def _run(
             vx = record.get("eval/mean_forward_velocity")
             say(
                 f"[vnl] step {step:>11,}/{p.num_timesteps:,} ({100 * min(step / p.num_timesteps, 1):3.0f}%) | "
-                f"reward {record.get('eval/episode_reward', float('nan')):9.2f} | "
+                + (f"stage {int(record['curriculum/stage']) + 1} | " if "curriculum/stage" in record else "")
+                + f"reward {record.get('eval/episode_reward', float('nan')):9.2f} | "
                 + (f"vx {vx:+.2f} m/s | " if vx is not None else "")
                 + f"{record['env_steps_per_sec']:7,.0f} steps/s | "
                 f"elapsed {_fmt_time(wall_offset + elapsed)} | ETA {eta}"
@@ -485,6 +499,9 @@ def _run(
                 n_evals[0] = 1  # checkpoint_every counts evaluations after the restored one
             else:
                 state = loop.init(config.seed)
+                if parent is not None:
+                    state = warm_start.apply(loop, state, parent, config.init.keep_optimizer)
+                    say(f"[vnl] networks and normalizer from {parent.run_dir} at step {parent.step:,}")
                 loop.compile(state)
                 state, metrics = loop.evaluate(state, {}) if lead else (state, {})
                 record = make_record(0, time.time() - t_start, metrics, episode_seconds)

@@ -1,0 +1,218 @@
+"""Warm starts (`--init-from`), lineage plots and curricula, on the point-mass test env."""
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+import yaml
+
+from vnl.cli import main
+from vnl.errors import VnlError
+from vnl.io import checkpoint, plot
+from vnl.io import metrics as metrics_io
+from vnl.train import config as train_config
+from vnl.train import ppo, warm_start
+
+pytestmark = [pytest.mark.xdist_group("curriculum"), pytest.mark.usefixtures("point_envs")]
+
+# Tiny preset: 16 envs × 4 minibatches × 8 steps = 512 env steps per training step.
+K = 1024
+QUIET = {"video": False, "progress": False}
+# MuJoCo C physics: the point mass's PPO programs compile in about half the time of MJX's.
+PPO = {"num_timesteps": K, "num_evals": 2, "learning_rate": 3e-3}
+SETTINGS = {"ppo": PPO, "log": QUIET, "env_config": {"impl": "c"}}
+# Two stages of K steps, evaluated every 512 steps; the episode length shows which stage's env
+# is evaluated (ppo.episode_length null: the env's own).
+CURRICULUM = {
+    "ppo": {"num_evals": 5, "learning_rate": 3e-3, "episode_length": None},
+    "log": QUIET,
+    "curriculum": [
+        {"name": "near", "steps": K, "env_config": {"target": 0.5, "episode_length": 20, "impl": "c"}},
+        {"name": "far", "steps": K, "env_config": {"target": 1.0, "episode_length": 40, "impl": "c"}},
+    ],
+}
+
+
+def quiet(_):
+    pass
+
+
+def tree_arrays(run_dir, step=None):
+    _, params = checkpoint.load(run_dir, step)
+    import jax
+
+    return [np.asarray(x) for x in jax.tree.leaves(params)]
+
+
+def untimed(records):
+    timing = ("wall_time", "env_steps_per_sec", "training/sps", "training/walltime", "eval/walltime", "eval/sps")
+    return [{k: v for k, v in r.items() if k not in timing and not k.endswith("_time")} for r in records]
+
+
+@pytest.fixture(scope="module", autouse=True)
+def compile_cache(tmp_path_factory):
+    """The persistent compilation cache (on by default in the CLI): a resumed run or a run of the
+    same env config loads the programs compiled for the first instead of compiling them again."""
+    from vnl import compile_cache
+
+    compile_cache.enable(tmp_path_factory.mktemp("jax-cache"))
+    yield
+    compile_cache.disable()
+
+
+@pytest.fixture(scope="module")
+def parent(tmp_path_factory):
+    out = tmp_path_factory.mktemp("parent") / "run"
+    ppo.train(train_config.build("test_point", "tiny", file_values=SETTINGS), out, say=quiet)
+    return out
+
+
+def child_config(parent_dir, keep_optimizer=False, **env_config):
+    values = {**SETTINGS, "init": {"run": str(parent_dir), "keep_optimizer": keep_optimizer}}
+    values["env_config"] = {**SETTINGS["env_config"], **env_config}
+    return train_config.build("test_point", "tiny", file_values=values)
+
+
+@pytest.fixture(scope="module")
+def child(parent, tmp_path_factory):
+    """A run warm-started from `parent` on another env config (the target at 0.5 m, not 1 m)."""
+    out = tmp_path_factory.mktemp("child") / "run"
+    ppo.train(child_config(parent, target=0.5), out, say=quiet)
+    return out
+
+
+COUNT = ".training.optimizer_state[0].count"
+MU = ".training.optimizer_state[0].mu.policy['params']['hidden_0']['kernel']"
+
+
+def test_warm_start_begins_with_the_parents_networks(parent, child):
+    # The child's untrained checkpoint (step 0) holds the parent's final networks and normalizer.
+    for a, b in zip(tree_arrays(parent), tree_arrays(child, 0), strict=True):
+        np.testing.assert_array_equal(a, b)
+    _, theirs, _ = checkpoint.load_train_state(parent)
+    _, ours, _ = checkpoint.load_train_state(child, 0)
+    assert int(ours[COUNT]) == 0 and int(theirs[COUNT]) > 0  # a fresh optimizer
+    assert not ours[MU].any() and theirs[MU].any()
+    assert int(ours[".training.env_steps.lo"]) == 0  # the child counts its own steps
+    saved = yaml.safe_load((child / "config.yaml").read_text())
+    parent_config = train_config.build("test_point", "tiny", file_values=SETTINGS)
+    assert saved["init"]["run"] == str(parent.absolute()) and saved["init"]["step"] == K
+    assert saved["init"]["config_hash"] == warm_start.config_hash(train_config.resolved(parent_config))
+    assert saved["env_config"]["target"] == 0.5
+    # The child trained on from there: its final networks differ from the parent's.
+    assert any(not np.array_equal(a, b) for a, b in zip(tree_arrays(parent), tree_arrays(child), strict=True))
+
+
+def test_keep_optimizer_takes_the_parents_adam_state(parent):
+    from vnl.envs import registry
+    from vnl.train.loop import PPOLoop
+
+    config = child_config(parent, keep_optimizer=True)
+    loop = PPOLoop(registry.make("test_point", **config.env_config), config)
+    fresh = loop.init(config.seed)
+    state = warm_start.apply(loop, fresh, warm_start.load_parent(config), keep_optimizer=True)
+    ours = loop.to_arrays(state)
+    _, theirs, _ = checkpoint.load_train_state(parent)
+    for k, v in theirs.items():
+        if k.startswith((".training.params", ".training.normalizer_params", ".training.optimizer_state")):
+            np.testing.assert_array_equal(ours[k], v, err_msg=k)
+    assert int(ours[COUNT]) > 0 and int(ours[".training.env_steps.lo"]) == 0
+    np.testing.assert_array_equal(ours[".env.obs"], loop.to_arrays(fresh)[".env.obs"])  # its own envs
+
+
+def test_warm_start_errors_are_one_line_before_anything_is_written(parent, tmp_path, capsys):
+    out = tmp_path / "x"
+    flags = ["--preset", "tiny", "--out", str(out), "--no-video", "--no-compile-cache"]
+    # Another env with another observation and action layout: the sizes are named.
+    assert main(["train", "ant_run", *flags, "--init-from", str(parent)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and err.startswith("vnl: error:")
+    assert "width 2 and give 1 actions" in err and "ant_run has observations of width 27 and 8 actions" in err
+    # Other network sizes than the parent's.
+    warm = ["train", "test_point", *flags, "--init-from", str(parent)]
+    assert main([*warm, "--set", "network.policy_hidden_layer_sizes=[8]"]) == 2
+    assert "network.policy_hidden_layer_sizes [16, 16] vs [8]" in capsys.readouterr().err
+    assert main([*warm, "--step", "7"]) == 2
+    assert "no checkpoint at step 7" in capsys.readouterr().err
+    assert main(["train", "test_point", *flags, "--step", "0"]) == 2
+    assert "--step needs --init-from" in capsys.readouterr().err
+    assert main(["train", "--resume", str(parent), "--init-from", str(parent)]) == 2
+    assert "use one of them" in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_lineage_plot_draws_the_parent_then_the_child(parent, child, tmp_path):
+    grandchild = tmp_path / "grandchild"
+    ppo.train(child_config(child, target=0.5), grandchild, say=quiet)  # the child's programs: cached
+    assert plot.lineage(grandchild) == [(parent.absolute(), K), (child.absolute(), K), (grandchild, None)]
+    # A moved parent is found next to its child by name.
+    moved = tmp_path / "moved"
+    moved.mkdir()
+    shutil.copytree(child, moved / "child")
+    shutil.copytree(grandchild, moved / "grandchild")
+    yaml_path = moved / "grandchild" / "config.yaml"
+    saved = yaml.safe_load(yaml_path.read_text())
+    saved["init"]["run"] = str(tmp_path / "gone" / "child")
+    yaml_path.write_text(yaml.safe_dump(saved))
+    assert plot.lineage(moved / "grandchild")[1][0] == moved / "child"
+    out = tmp_path / "lineage.png"
+    assert main(["plot", str(moved / "grandchild"), str(parent), "--lineage", "--out", str(out)]) == 0
+    assert out.stat().st_size > 5000
+    shutil.rmtree(moved / "child")
+    with pytest.raises(VnlError, match="parent of .* has no metrics.jsonl"):
+        plot.lineage(moved / "grandchild")
+
+
+@pytest.fixture(scope="module")
+def staged(tmp_path_factory):
+    """An uninterrupted two-stage run: evaluations at 0, 512, 1024 (stage 1), 1536, 2048 (stage 2)."""
+    out = tmp_path_factory.mktemp("curriculum") / "run"
+    config = train_config.build("test_point", "tiny", file_values=CURRICULUM)
+    messages = []
+    ppo.train(config, out, say=messages.append)
+    return out, messages
+
+
+def test_curriculum_trains_each_stage_in_its_env(staged):
+    out, messages = staged
+    records = metrics_io.read(out / "metrics.jsonl")
+    assert [r["step"] for r in records] == [0, 512, 2 * 512, 3 * 512, 4 * 512]
+    assert [r["curriculum/stage"] for r in records] == [0, 0, 0, 1, 1]
+    # Evaluated in each stage's env: its episode length.
+    assert [r["eval/avg_episode_length"] for r in records] == [20, 20, 20, 40, 40]
+    assert any("curriculum stage 2/2 (far) from step 1,024" in m for m in messages)
+    saved = yaml.safe_load((out / "config.yaml").read_text())
+    assert saved["ppo"]["num_timesteps"] == 2 * K and [s["name"] for s in saved["curriculum"]] == ["near", "far"]
+    _, arrays, _ = checkpoint.load_train_state(out)
+    assert int(arrays[".curriculum_stage"]) == 1
+
+
+@pytest.mark.parametrize("step", [2 * 512, 3 * 512])  # at the end of stage 1, inside stage 2
+def test_curriculum_resumes_exactly_at_any_stage(staged, tmp_path, step):
+    out, _ = staged
+    copy = tmp_path / "copy"
+    shutil.copytree(out, copy)
+    ppo.resume(copy, from_step=step, say=quiet)
+    for a, b in zip(tree_arrays(out), tree_arrays(copy), strict=True):
+        np.testing.assert_array_equal(a, b)
+    _, sa, _ = checkpoint.load_train_state(out)
+    _, sb, _ = checkpoint.load_train_state(copy)
+    for k in sa:
+        np.testing.assert_array_equal(sa[k], sb[k], err_msg=k)
+    assert untimed(metrics_io.read(copy / "metrics.jsonl")) == untimed(metrics_io.read(out / "metrics.jsonl"))
+
+
+def test_curriculum_config_errors_name_the_problem(staged):
+    with pytest.raises(VnlError, match=r"sum of its stages' steps \(2,048\).*ppo.num_timesteps is 5,000"):
+        train_config.build("test_point", "tiny", file_values=CURRICULUM, flags={"ppo": {"num_timesteps": 5000}})
+    bad = json.loads(json.dumps(CURRICULUM))
+    bad["curriculum"][1]["env_config"]["nope"] = 1
+    with pytest.raises(VnlError, match=r"curriculum\[1\].env_config: test_point: unknown config key nope"):
+        train_config.build("test_point", "tiny", file_values=bad)
+    bad["curriculum"][1] = {"env_config": {}}
+    with pytest.raises(VnlError, match="steps"):
+        train_config.build("test_point", "tiny", file_values=bad)
+    out, _ = staged
+    with pytest.raises(VnlError, match="curriculum"):
+        ppo.resume(out, assignments=["curriculum=[]"], say=quiet)

@@ -1,0 +1,186 @@
+"""Warm starts: a new run that begins with another run's networks (`vnl train ENV --init-from RUN_DIR`).
+
+The new run takes the parent checkpoint's policy and value parameters and its observation
+normalizer (and with `init.keep_optimizer` its Adam state); everything else starts fresh — its
+own env (any env config, or another env with the same observation and action layout), seed, env
+states and step count, which starts at 0. Its config.yaml records the parent (`init.run`), the
+checkpoint step used (`init.step`) and the hash of the parent's config (`init.config_hash`), so
+`vnl plot --lineage` can draw the parent's curve followed by the child's.
+
+The networks must be the same: unless the user sets `network.*`, the child takes the parent's
+network section (`parent_defaults`); any difference in sizes is one `VnlError` naming them,
+before anything compiles.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from vnl import config as config_lib
+from vnl.errors import VnlError
+from vnl.io import checkpoint
+from vnl.train.config import TrainConfig
+
+PARAMS = ".training.params."
+NORMALIZER = ".training.normalizer_params."
+OPTIMIZER = ".training.optimizer_state"
+
+
+@dataclasses.dataclass
+class Parent:
+    """The checkpoint a warm start begins from.
+
+    Attributes:
+      run_dir: the parent run directory (absolute).
+      step: the checkpoint's step.
+      config: the parent's TrainConfig.
+      arrays: the checkpoint's training state, `.training.*` arrays only (named as in
+        `PPOLoop.to_arrays`).
+    """
+
+    run_dir: Path
+    step: int
+    config: TrainConfig
+    arrays: dict[str, np.ndarray]
+
+    @property
+    def config_hash(self) -> str:
+        return config_hash(self.config)
+
+    def sizes(self) -> tuple[int, int]:
+        """(observation width, action size) the parent's networks take and give: the
+        normalizer's width (of `state` for vision runs) and half the policy's output (Brax's
+        policy outputs a location and a scale per action)."""
+        mean = [v for k, v in self.arrays.items() if k.startswith(NORMALIZER + "mean")]
+        width = int(mean[0].shape[-1]) if len(mean) == 1 else -1
+        outputs = [
+            (int(m.group(1)), v)
+            for k, v in self.arrays.items()
+            if (m := re.fullmatch(r"\.training\.params\.policy\['params'\]\['hidden_(\d+)'\]\['bias'\]", k))
+        ]
+        actions = int(max(outputs, key=lambda kv: kv[0])[1].shape[-1]) // 2 if outputs else -1
+        return width, actions
+
+
+def config_hash(config: TrainConfig) -> str:
+    """A short hash of a run's config without its `log` section (what a resume may change)."""
+    values = {k: v for k, v in config_lib.to_dict(config).items() if k != "log"}
+    return hashlib.sha256(yaml.safe_dump(values, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def parent_defaults(run_dir: str | Path) -> dict[str, Any]:
+    """The config values a child inherits unless it sets them: the parent's network and whether
+    it normalizes observations (`vnl.train.config.build` takes them as file values below the
+    user's own)."""
+    from vnl.policy import read_config
+
+    parent = read_config(run_dir)
+    return {
+        "network": config_lib.to_dict(parent.network),
+        "ppo": {"normalize_observations": parent.ppo.normalize_observations},
+    }
+
+
+def load_parent(config: TrainConfig) -> Parent:
+    """Reads the checkpoint `config.init` names; `VnlError` when the run or step is missing or
+    unreadable, or when the parent's networks differ from `config`'s."""
+    from vnl.policy import read_config
+
+    init = config.init
+    if init.run is None:
+        raise VnlError("no parent run: set init.run (--init-from RUN_DIR)")
+    run_dir = Path(init.run).absolute()
+    parent_config = read_config(run_dir)
+    step, arrays, _ = checkpoint.load_train_state(run_dir, init.step)
+    arrays = {k: v for k, v in arrays.items() if k.startswith(".training.")}
+    parent = Parent(run_dir, step, parent_config, arrays)
+    _check_networks(parent, config)
+    return parent
+
+
+def _check_networks(parent: Parent, config: TrainConfig) -> None:
+    a, b = parent.config, config
+    fields = ("policy_hidden_layer_sizes", "value_hidden_layer_sizes", "activation")
+    if b.vision.enabled:
+        fields += ("cnn_channels", "cnn_kernel_sizes", "cnn_strides", "cnn_max_pool", "cnn_pool")
+    differ = [f for f in fields if getattr(a.network, f) != getattr(b.network, f)]
+    if differ:
+        net_a, net_b = a.network, b.network
+        detail = "; ".join(f"network.{f} {_show(getattr(net_a, f))} vs {_show(getattr(net_b, f))}" for f in differ)
+        raise VnlError(
+            f"cannot start from {parent.run_dir} (step {parent.step:,}): its networks differ from this run's "
+            f"({detail}); drop the network overrides (a warm start takes the parent's networks)"
+        )
+    if a.ppo.normalize_observations != b.ppo.normalize_observations:
+        raise VnlError(
+            f"cannot start from {parent.run_dir}: ppo.normalize_observations is {a.ppo.normalize_observations} "
+            f"there and {b.ppo.normalize_observations} here"
+        )
+    if a.vision.enabled != b.vision.enabled:
+        raise VnlError(
+            f"cannot start from {parent.run_dir}: it was trained {'with' if a.vision.enabled else 'without'} "
+            f"--vision and this run is {'with' if b.vision.enabled else 'without'} it"
+        )
+
+
+def _show(value: Any) -> str:
+    return str(list(value)) if isinstance(value, tuple) else str(value)
+
+
+def check_layout(parent: Parent, env: Any, env_name: str) -> None:
+    """`VnlError` naming the sizes when `env`'s observation or action layout differs from the
+    parent's (checked from shapes; nothing is compiled)."""
+    width, actions = parent.sizes()
+    size = env.observation_size
+    own = int(size["state"][-1]) if isinstance(size, dict) else int(size)
+    if (width, actions) != (own, env.action_size):
+        raise VnlError(
+            f"cannot start from {parent.run_dir} (step {parent.step:,}, env {parent.config.env}): its networks take "
+            f"observations of width {width} and give {actions} actions, but {env_name} has observations of width "
+            f"{own} and {env.action_size} actions; --init-from needs the same observation and action layout"
+        )
+
+
+def recorded(config: TrainConfig, parent: Parent) -> TrainConfig:
+    """`config` with the parent recorded: its absolute path, the step used and its config hash."""
+    init = dataclasses.replace(config.init, run=str(parent.run_dir), step=parent.step, config_hash=parent.config_hash)
+    return dataclasses.replace(config, init=init)
+
+
+def apply(loop: Any, state: Any, parent: Parent, keep_optimizer: bool) -> Any:
+    """`state` (a fresh `LoopState` of `loop`) with the parent's params and normalizer (and Adam
+    state with `keep_optimizer`); the env step count stays 0.
+
+    Raises `VnlError` naming the arrays whose shapes differ (the layouts were checked before, so
+    this catches anything else, e.g. a different optimizer chain with `keep_optimizer`).
+    """
+    import jax
+
+    training = loop.training(state)
+    paths, treedef = jax.tree_util.tree_flatten_with_path(training)
+    prefixes = (PARAMS, NORMALIZER) + ((OPTIMIZER,) if keep_optimizer else ())
+    leaves, bad = [], []
+    for path, leaf in paths:
+        name = ".training" + jax.tree_util.keystr(path)
+        if not name.startswith(prefixes):
+            leaves.append(leaf)
+            continue
+        theirs = parent.arrays.get(name)
+        if theirs is None or theirs.shape != np.shape(leaf) or theirs.dtype != np.asarray(leaf).dtype:
+            bad.append(f"{name[len('.training.') :]} {None if theirs is None else theirs.shape} vs {np.shape(leaf)}")
+            leaves.append(leaf)
+        else:
+            leaves.append(theirs)
+    if bad:
+        raise VnlError(
+            f"cannot start from {parent.run_dir} (step {parent.step:,}): the saved training state does not fit "
+            f"this run ({'; '.join(bad[:3])}{' ...' if len(bad) > 3 else ''})"
+        )
+    return loop.with_training(state, jax.tree_util.tree_unflatten(treedef, leaves))
