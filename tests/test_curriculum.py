@@ -216,3 +216,55 @@ def test_curriculum_config_errors_name_the_problem(staged):
     out, _ = staged
     with pytest.raises(VnlError, match="curriculum"):
         ppo.resume(out, assignments=["curriculum=[]"], say=quiet)
+
+
+@pytest.fixture(scope="module")
+def parent_seed1(tmp_path_factory):
+    """`parent`'s config with another seed (its programs come from the compilation cache)."""
+    out = tmp_path_factory.mktemp("parent1") / "run"
+    ppo.train(train_config.build("test_point", "tiny", file_values=SETTINGS, flags={"seed": 1}), out, say=quiet)
+    return out
+
+
+def test_compare_networks_on_the_same_episodes(parent, parent_seed1, child, tmp_path, capsys):
+    import jax
+
+    from vnl import compare, record
+    from vnl.analysis import open_recording
+    from vnl.policy import load_run
+
+    rec = record.write(record.record(load_run(parent), episodes=2, steps=20, seed=3), tmp_path / "record.nc")
+    out = tmp_path / "cka.png"
+    args = ["compare", str(parent), str(parent_seed1), str(child), "--recording", str(rec), "--out", str(out)]
+    assert main([*args, "--no-compile-cache"]) == 0
+    text = capsys.readouterr().out
+    assert (
+        "linear CKA on 40 steps" in text
+        and f"{parent.parent.name}/run (rows) vs {parent_seed1.parent.name}/run" in text
+    )
+    assert "(columns)  (same model, other seed)" in text
+    assert out.stat().st_size > 10_000
+    result = json.loads(out.with_suffix(".json").read_text())
+    assert [p["across_seeds"] for p in result["pairs"]] == [True, False, False]
+    # The numbers: each network's layers recomputed on the recording, then CKA by its definition.
+    ds = open_recording(rec)
+    obs, mask = ds["observation"].values, ds["active"].values > 0
+    acts = []
+    for run_dir in (parent, child):
+        activity = record.network_activity(load_run(run_dir), obs, jax.random.PRNGKey(0))
+        acts.append({k: np.asarray(v).reshape(2, 20, -1)[mask] for k, v in activity.items() if k != "action"})
+    pair = result["pairs"][1]  # parent vs child
+    assert pair["layers_a"][0] == "policy_hidden_0"
+    for i, la in enumerate(pair["layers_a"]):
+        for j, lb in enumerate(pair["layers_b"]):
+            assert pair["similarity"][i][j] == pytest.approx(compare.linear_cka(acts[0][la], acts[1][lb]), rel=1e-6)
+    # Own recording of the first network, RSA, a step of a run; bad input is one line.
+    out = tmp_path / "rsa.png"
+    args = ["compare", f"{parent}@0", str(parent), "--episodes", "2", "--steps", "10", "--rsa", "euclidean"]
+    assert main([*args, "--out", str(out), "--no-compile-cache"]) == 0
+    text = capsys.readouterr().out
+    assert "RSA (Spearman of euclidean RDMs) on 20 steps" in text and "run@0 (rows) vs run (columns)\n" in text
+    assert main(["compare", str(parent), "--no-compile-cache"]) == 2
+    assert "at least two networks" in capsys.readouterr().err
+    assert main(["compare", str(parent), f"{parent}@x", "--no-compile-cache"]) == 2
+    assert "RUN_DIR@STEP" in capsys.readouterr().err

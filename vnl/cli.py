@@ -1,4 +1,4 @@
-"""`vnl` command line: list | train | eval | render | plot | record | analyze.
+"""`vnl` command line: list | train | eval | render | plot | record | analyze | compare | view.
 
 The only module that parses flags or sets process-wide state (OpenGL backend, warning filters).
 User mistakes print one line `vnl: error: ...` and exit with code 2.
@@ -323,6 +323,48 @@ def cmd_analyze(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_compare(args: argparse.Namespace) -> int:
+    from vnl import compare
+    from vnl.errors import VnlError
+
+    if len(args.networks) < 2:
+        raise VnlError("vnl compare needs at least two networks (run directories, RUN_DIR@STEP or recordings)")
+    measure = "rsa" if args.rsa else "cka"
+    if args.rsa:
+        compare.check_distance(args.rsa)
+    sources = [compare.parse_source(text) for text in args.networks]
+    ds, source = _shared_recording(args, sources)
+    obs, mask = compare.observations(ds)
+    if measure == "rsa":  # RDMs grow with the square of the samples
+        mask = compare.subsample(mask, args.max_samples)
+    nets = [compare.network(s, obs, mask, n) for s, n in zip(sources, compare.names(sources), strict=True)]
+    result = compare.compare(nets, measure, args.rsa or "correlation", source)
+    print(compare.table(result))
+    out = Path(args.out) if args.out else sources[0].run_dir / f"compare_{measure}.png"
+    compare.heatmap(result, out)
+    out.with_suffix(".json").write_text(json.dumps(result.to_json(), indent=1))
+    print(f"wrote {out} and {out.with_suffix('.json')}")
+    return 0
+
+
+def _shared_recording(args: argparse.Namespace, sources: list[Any]) -> tuple[Any, str]:
+    """The episodes every network sees: --recording, else the first recording among the
+    networks, else a new recording of the first run's policy."""
+    from vnl import record
+    from vnl.analysis import open_recording
+    from vnl.policy import load_run
+
+    path = args.recording or next((s.recording for s in sources if s.recording is not None), None)
+    if path is not None:
+        ds = open_recording(path)
+        return ds, f"{path} ({ds.sizes['episode']} episodes)"
+    run = load_run(sources[0].run_dir, step=sources[0].step)
+    steps = args.steps or run.config.episode_length()
+    print(f"[vnl] recording {args.episodes} episodes x {steps} steps of {run.run_dir} (step {run.step:,}) ...")
+    ds = record.record(run, args.episodes, steps, args.seed)
+    return ds, f"{args.episodes} episodes of {run.run_dir.name}@{run.step} (seed {args.seed})"
+
+
 # --- parser -----------------------------------------------------------------------------------
 def _cache_flags(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("compilation cache (compiled programs reused by later runs of the same env and shapes)")
@@ -413,6 +455,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="NetCDF file (default <run_dir>/record.nc)")
     _cache_flags(p)
 
+    p = sub.add_parser("compare", help="representational similarity (CKA, RSA) of networks on the same episodes")
+    p.add_argument("networks", nargs="+", metavar="NETWORK", help="run directory, RUN_DIR@STEP, or a recording")
+    p.add_argument("--recording", help="the episodes every network sees (default: the first recording given, else new)")
+    p.add_argument("--episodes", type=int, default=4, help="episodes of a new recording of the first network")
+    p.add_argument("--steps", type=int, help="steps per episode of a new recording (default: episode length)")
+    p.add_argument("--seed", type=int, default=0, help="seed of a new recording")
+    p.add_argument("--rsa", metavar="DISTANCE", help="RSA with this distance (e.g. correlation) instead of linear CKA")
+    p.add_argument("--max-samples", type=int, default=2000, help="RSA: at most this many steps (evenly spaced)")
+    p.add_argument("--out", help="heatmap PNG (default <first run>/compare_<measure>.png; a .json beside it)")
+    _cache_flags(p)
+
     p = sub.add_parser("analyze", help="PCA of a recorded layer over time, as a PNG")
     p.add_argument("recording", help="a file written by `vnl record`")
     p.add_argument("--layer", help="e.g. policy_hidden_1 (default: the first policy hidden layer)")
@@ -440,6 +493,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return cmd_record(args)
         if args.command == "analyze":
             return cmd_analyze(args)
+        if args.command == "compare":
+            return cmd_compare(args)
         return cmd_render(args, gl)
     except VnlError as e:
         print(f"vnl: error: {e}", file=sys.stderr)

@@ -87,8 +87,9 @@ class Network:
     name: str
     run_dir: Path
     step: int
-    group: str  # runs with the same group differ only in seed
+    group: str  # runs of one config (seed and logging aside) at one checkpoint step
     layers: dict[str, np.ndarray]
+    seed: int = 0
 
 
 @dataclasses.dataclass
@@ -113,7 +114,9 @@ class Comparison:
         return list(self.networks[i].layers)
 
     def same_seed_group(self, i: int, j: int) -> bool:
-        return self.networks[i].group == self.networks[j].group
+        """Whether networks i and j are one model trained with two seeds."""
+        a, b = self.networks[i], self.networks[j]
+        return a.group == b.group and a.seed != b.seed
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -168,8 +171,8 @@ def table(result: Comparison) -> str:
         lines.append(" " * width + "".join(f" {n[-16:]:>16}" for n in names_b))
         for name, row in zip(result.layer_names(i), m, strict=True):
             lines.append(f"{name:<{width}}" + "".join(f" {v:>16.3f}" for v in row))
-    shared = [n for n in result.layer_names(0) if all(n in net.layers for net in result.networks)] if result.pairs else []
-    if shared:
+    shared = [n for n in result.layer_names(0) if all(n in net.layers for net in result.networks)]
+    if shared and result.pairs:
         lines += ["", "same layer, every pair:"]
         label = {p: f"{result.networks[p[0]].name} vs {result.networks[p[1]].name}" for p in result.pairs}
         width = max(len(v) + 8 for v in label.values())
@@ -211,4 +214,105 @@ def heatmap(result: Comparison, out: str | Path) -> Path:
     out = Path(out)
     fig.savefig(out, dpi=100)
     plt.close(fig)
+    return out
+
+
+# ---- networks on shared observations -------------------------------------------------------
+
+
+@dataclasses.dataclass
+class Source:
+    """A network to compare: a run directory at a checkpoint step (None: newest), and the
+    recording it was given as, if any."""
+
+    run_dir: Path
+    step: int | None
+    recording: Path | None = None
+
+
+def parse_source(text: str) -> Source:
+    """`RUN_DIR`, `RUN_DIR@STEP` (a checkpoint) or a recording file written by `vnl record`."""
+    from vnl.analysis import open_recording
+
+    path = Path(text)
+    if path.is_file():
+        ds = open_recording(path)
+        if "run_dir" not in ds.attrs:
+            raise VnlError(f"{path} does not say which run it recorded (no run_dir attribute); is it a vnl recording?")
+        return Source(Path(ds.attrs["run_dir"]), int(ds.attrs["checkpoint_step"]), path)
+    step = None
+    if "@" in path.name and not path.is_dir():
+        name, _, number = path.name.rpartition("@")
+        if not number.isdigit():
+            raise VnlError(f"{text}: expected RUN_DIR@STEP with a checkpoint step, e.g. runs/a@4096")
+        path, step = path.with_name(name), int(number)
+    if not path.is_dir():
+        raise VnlError(f"{text} is neither a run directory nor a recording file")
+    return Source(path, step)
+
+
+def observations(ds: Any) -> tuple[np.ndarray, np.ndarray]:
+    """The recording's observations (episodes, time, width) and its active-step mask (episodes,
+    time) as booleans."""
+    if "observation" not in ds or "active" not in ds:
+        raise VnlError("the recording has no observation/active variables; record it with `vnl record`")
+    return np.asarray(ds["observation"].values), np.asarray(ds["active"].values) > 0
+
+
+def network(source: Source, obs: np.ndarray, mask: np.ndarray, name: str) -> Network:
+    """The activity of every layer of `source`'s policy and value networks on `obs` (episodes,
+    time, width), at the active steps: name -> (active steps, units)."""
+    import jax
+
+    from vnl.io.plot import group_key
+    from vnl.policy import load_run
+    from vnl.record import network_activity
+
+    run = load_run(source.run_dir, step=source.step)
+    width = run.env.observation_size
+    if isinstance(width, dict):
+        raise VnlError(f"{source.run_dir} sees pixels; vnl compare takes runs with flat observations only")
+    if obs.shape[-1] != width:
+        raise VnlError(
+            f"{source.run_dir} ({run.config.env}) takes observations of width {width}, the shared recording has "
+            f"{obs.shape[-1]}; compare networks of envs with the same observation layout"
+        )
+    activity = jax.device_get(network_activity(run, obs.astype(np.float32), jax.random.PRNGKey(0)))
+    layers = {}
+    for k in sorted(activity, key=_layer_order):
+        if k.startswith(("policy_", "value_")):
+            v = np.asarray(activity[k])
+            layers[k] = (v[..., None] if v.ndim == 2 else v)[mask]
+    group = f"{group_key(run.run_dir)}@{run.step}"
+    return Network(name, run.run_dir, run.step, group, layers, seed=run.config.seed)
+
+
+def _layer_order(name: str) -> tuple[int, int, str]:
+    """policy layers before value layers, hidden layers by index, outputs last."""
+    net = 0 if name.startswith("policy") else 1
+    tail = name.rsplit("_", 1)[-1]
+    return net, int(tail) if tail.isdigit() else 1 << 30, name
+
+
+def names(sources: list[Source]) -> list[str]:
+    """Short unique names: the run directory's name (with @step when given); where names repeat,
+    with its parent directory's name in front, then numbered if they still do."""
+
+    def label(s: Source, parts: int) -> str:
+        return "/".join(s.run_dir.parts[-parts:]) + (f"@{s.step}" if s.step is not None and s.recording is None else "")
+
+    base = [label(s, 1) for s in sources]
+    base = [b if base.count(b) == 1 else label(s, 2) for s, b in zip(sources, base, strict=True)]
+    return [b if base.count(b) == 1 else f"{b}#{base[:i].count(b) + 1}" for i, b in enumerate(base)]
+
+
+def subsample(mask: np.ndarray, n: int) -> np.ndarray:
+    """`mask` (episodes, time) keeping at most `n` of its True steps, evenly spaced."""
+    total = int(mask.sum())
+    if n < 1 or total <= n:
+        return mask
+    keep = np.zeros(total, bool)
+    keep[np.linspace(0, total - 1, n).astype(int)] = True
+    out = mask.copy()
+    out[mask] = keep
     return out

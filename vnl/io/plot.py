@@ -92,7 +92,7 @@ def resolve_metric(name: str, available: set[str]) -> str:
     raise VnlError(f"no metric {name!r} in these runs; try one of: {shown}")
 
 
-def _group_key(run_dir: Path) -> str:
+def group_key(run_dir: Path) -> str:
     """Runs that differ only in seed, output and logging settings share a group."""
     import yaml
 
@@ -159,7 +159,7 @@ def _draw_groups(ax: Any, runs: list[tuple[Path, list[dict[str, Any]]]], key: st
 
     groups: dict[str, list[tuple[Path, list[dict[str, Any]]]]] = {}
     for d, recs in runs:
-        groups.setdefault(_group_key(d), []).append((d, recs))
+        groups.setdefault(group_key(d), []).append((d, recs))
     for i, members in enumerate(groups.values()):
         curves = [c for c in (_curve(recs, key) for _, recs in members) if len(c[0])]
         if not curves:
