@@ -306,7 +306,51 @@ def cmd_record(args: argparse.Namespace) -> int:
     layers = ", ".join(f"{k} ({ds.sizes[k + '_unit']})" for k in ds.data_vars if k.startswith(("policy_", "value_")))
     print(f"{run.config.env} @ step {run.step:,}: {args.episodes} episodes x {steps} steps -> {out}")
     print(f"layers: {layers}")
+    if args.viewer:
+        _write_view(ds, run.env, out.with_suffix(".rrd"), 0, 4, True, None)
     return 0
+
+
+def cmd_view(args: argparse.Namespace) -> int:
+    from vnl import record, viewer
+    from vnl.analysis import open_recording
+    from vnl.errors import VnlError
+    from vnl.policy import load_run
+
+    source = Path(args.source)
+    if source.is_file():
+        if args.step is not None:
+            raise VnlError("--step chooses a checkpoint to record; a recording was given")
+        ds = open_recording(source)
+        env = viewer.recording_env(ds)
+        out = Path(args.out) if args.out else source.with_suffix(".rrd")
+    else:
+        if args.episode:
+            raise VnlError("--episode picks an episode of a recording; a run directory is recorded for one episode")
+        run = load_run(source, step=args.step)
+        steps = args.steps or run.config.episode_length()
+        print(f"[vnl] recording 1 episode of {steps} steps of {run.run_dir} (step {run.step:,}) ...")
+        ds, env = record.record(run, 1, steps, args.seed), run.env
+        out = Path(args.out) if args.out else run.run_dir / "view.rrd"
+    _write_view(ds, env, out, args.episode, args.units, not args.no_camera, args.open)
+    return 0
+
+
+def _write_view(ds: Any, env: Any, out: Path, episode: int, units: int, camera: bool, open_in: str | None) -> None:
+    """Writes the Rerun recording of an episode, says how to open it, and opens it if asked."""
+    import subprocess
+
+    from vnl import viewer
+
+    path = viewer.write(ds, env, out, episode, units, camera)
+    print(f"wrote {path} ({path.stat().st_size / 2**20:.1f} MB): episode {episode} of {ds.attrs.get('env', '')}")
+    rerun = [sys.executable, "-m", "rerun"]  # the viewer binary that ships with rerun-sdk
+    print(f"open it: rerun {path} (desktop) | rerun --web-viewer {path} (browser) | vnl.viewer.notebook(ds, env)")
+    if open_in == "desktop":
+        subprocess.Popen([*rerun, str(path)], start_new_session=True)
+    elif open_in == "web":
+        print("[vnl] serving the web viewer on this machine; Ctrl-C stops it")
+        subprocess.run([*rerun, "--web-viewer", "--bind", "127.0.0.1", str(path)], check=False)
 
 
 def cmd_analyze(args: argparse.Namespace) -> int:
@@ -453,6 +497,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--stochastic", action="store_true", help="sample actions instead of the mean action")
     p.add_argument("--out", help="NetCDF file (default <run_dir>/record.nc)")
+    p.add_argument("--viewer", action="store_true", help="also write episode 0 as a Rerun recording (.rrd) beside it")
+    _cache_flags(p)
+
+    p = sub.add_parser("view", help="one episode's body, camera, actions, rewards and neurons in Rerun's viewer")
+    p.add_argument("source", metavar="RUN_DIR|RECORDING", help="a run (records one episode) or a `vnl record` file")
+    p.add_argument("--episode", type=int, default=0, help="the recording's episode (default 0)")
+    p.add_argument("--steps", type=int, help="with a run: control steps (default: episode length)")
+    p.add_argument("--step", type=int, help="with a run: checkpoint step (default: newest)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--units", type=int, default=4, help="traces of each layer's most variable units (default 4)")
+    p.add_argument("--no-camera", action="store_true", help="leave out the egocentric camera's images")
+    p.add_argument("--out", help=".rrd path (default <run_dir>/view.rrd or the recording's name with .rrd)")
+    p.add_argument("--open", choices=["desktop", "web"], help="open it in Rerun's desktop viewer or a browser")
     _cache_flags(p)
 
     p = sub.add_parser("compare", help="representational similarity (CKA, RSA) of networks on the same episodes")
@@ -495,6 +552,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return cmd_analyze(args)
         if args.command == "compare":
             return cmd_compare(args)
+        if args.command == "view":
+            return cmd_view(args)
         return cmd_render(args, gl)
     except VnlError as e:
         print(f"vnl: error: {e}", file=sys.stderr)

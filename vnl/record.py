@@ -3,7 +3,7 @@
 `record` rolls out a trained run's policy and returns an `xarray.Dataset` with, per episode and
 time step: the observation, the activations of every layer of the policy and value networks, the
 action, the reward and its terms, the env's metrics, and the walker's joint angles, joint
-velocities and body positions. `write` saves it as NetCDF-4 (HDF5, through h5netcdf) with named
+velocities and body poses (positions and orientations). `write` saves it as NetCDF-4 (HDF5, through h5netcdf) with named
 dimensions, readable with xarray or h5py alone.
 
 Timing: variables indexed by `time` t describe the step that starts in state s_t: the observation
@@ -103,6 +103,7 @@ def record(run: LoadedRun, episodes: int, steps: int, seed: int = 0, determinist
                 "qpos": state.data.qpos,
                 "qvel": state.data.qvel,
                 "body_pos": state.data.xpos,
+                "body_quat": state.data.xquat,
                 "reward": nxt.reward,
                 "done": nxt.done,
                 "active": alive,
@@ -136,6 +137,7 @@ def record(run: LoadedRun, episodes: int, steps: int, seed: int = 0, determinist
         "qpos": (dims_et + ("qpos_index",), et(raw["qpos"])),
         "qvel": (dims_et + ("qvel_index",), et(raw["qvel"])),
         "body_pos": (dims_et + ("body", "xyz"), et(raw["body_pos"])),
+        "body_quat": (dims_et + ("body", "wxyz"), et(raw["body_quat"])),
     }
     for k, v in raw["metrics"].items():
         data[k.replace("/", "_")] = (dims_et, et(v))
@@ -156,6 +158,7 @@ def record(run: LoadedRun, episodes: int, steps: int, seed: int = 0, determinist
             "actuator": names(mujoco.mjtObj.mjOBJ_ACTUATOR, m.nu),
             "body": names(mujoco.mjtObj.mjOBJ_BODY, m.nbody),
             "xyz": ["x", "y", "z"],
+            "wxyz": ["w", "x", "y", "z"],
             "qpos_index": _dof_labels(m, qpos=True),
             "qvel_index": _dof_labels(m, qpos=False),
         },
