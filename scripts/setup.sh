@@ -12,9 +12,14 @@ if command -v apt-get >/dev/null 2>&1 && [ "$(id -u)" = 0 ]; then
        libegl1 libgl1-mesa-dri libosmesa6 >/dev/null) \
       || echo "setup: could not install OpenGL libraries; videos will be skipped" >&2
   fi
+  # Headless Chromium: the test that screenshots Rerun's web viewer with a recording loaded.
+  if ! command -v chromium >/dev/null 2>&1; then
+    (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null) \
+      || echo "setup: could not install chromium; the web viewer screenshot test will be skipped" >&2
+  fi
 else
   echo "setup: not root or no apt-get; install EGL/OSMesa yourself for videos" \
-       "(Debian: libegl1 libgl1-mesa-dri libosmesa6)" >&2
+       "(Debian: libegl1 libgl1-mesa-dri libosmesa6), and chromium for the web viewer test" >&2
 fi
 
 PY=${PYTHON:-python3.11}
