@@ -85,6 +85,12 @@ def write_mp4(frames: Sequence[np.ndarray] | np.ndarray, path: str | Path, fps: 
     return path
 
 
+def show(frames: Sequence[np.ndarray] | np.ndarray, fps: float, width: int | None = None) -> None:
+    """Shows uint8 frames (T, H, W, 3) as a video in a notebook (mediapy, with imageio-ffmpeg's
+    ffmpeg when none is on PATH)."""
+    _mediapy().show_video(np.asarray(frames), fps=fps, width=width)
+
+
 def read_mp4(path: str | Path) -> np.ndarray:
     """Frames of a video as uint8 (T, H, W, 3).
 
