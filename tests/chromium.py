@@ -8,7 +8,9 @@ and differ from the first one (the loading screen), or until `timeout`.
 
 import base64
 import json
+import os
 import shutil
+import signal
 import socket
 import subprocess
 import tempfile
@@ -88,6 +90,7 @@ def screenshot(url: str, out: str, width: int = 1600, height: int = 900, timeout
         ],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
+        start_new_session=True,  # its renderer and GPU processes are ended with it
     )
     t0 = time.time()
     try:
@@ -112,7 +115,7 @@ def screenshot(url: str, out: str, width: int = 1600, height: int = 900, timeout
         finally:
             page.close()
     finally:
-        proc.terminate()
+        os.killpg(proc.pid, signal.SIGTERM)
         proc.wait(timeout=30)
         shutil.rmtree(profile, ignore_errors=True)
     return time.time() - t0

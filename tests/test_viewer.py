@@ -1,6 +1,7 @@
 """`vnl view`: Rerun recordings read back with Rerun's own reader, and the web viewer in Chromium."""
 
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -179,6 +180,7 @@ def test_web_viewer_shows_the_scene(gaps, tmp_path):
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
         env={**os.environ, "BROWSER": "true"},  # `--web-viewer` would also open a browser
+        start_new_session=True,  # its own process group: the Python launcher and the viewer binary it starts
     )
     try:
         chromium.wait_for_http(f"http://127.0.0.1:{web}/", 60)
@@ -186,7 +188,7 @@ def test_web_viewer_shows_the_scene(gaps, tmp_path):
         shot = tmp_path / "viewer.png"
         chromium.screenshot(url, str(shot), 1600, 900)
     finally:
-        server.terminate()
+        os.killpg(server.pid, signal.SIGTERM)
         server.wait(timeout=30)
     from PIL import Image
 
