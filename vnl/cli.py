@@ -317,6 +317,8 @@ def cmd_view(args: argparse.Namespace) -> int:
     from vnl.errors import VnlError
     from vnl.policy import load_run
 
+    if args.units < 0:
+        raise VnlError(f"--units must be >= 0, got {args.units}")
     source = Path(args.source)
     if source.is_file():
         if args.step is not None:
@@ -324,14 +326,16 @@ def cmd_view(args: argparse.Namespace) -> int:
         ds = open_recording(source)
         env = viewer.recording_env(ds)
         out = Path(args.out) if args.out else source.with_suffix(".rrd")
+        _check_out(out)
     else:
         if args.episode:
             raise VnlError("--episode picks an episode of a recording; a run directory is recorded for one episode")
         run = load_run(source, step=args.step)
+        out = Path(args.out) if args.out else run.run_dir / "view.rrd"
+        _check_out(out)
         steps = args.steps or run.config.episode_length()
         print(f"[vnl] recording 1 episode of {steps} steps of {run.run_dir} (step {run.step:,}) ...")
         ds, env = record.record(run, 1, steps, args.seed), run.env
-        out = Path(args.out) if args.out else run.run_dir / "view.rrd"
     _write_view(ds, env, out, args.episode, args.units, not args.no_camera, args.open)
     return 0
 
@@ -377,6 +381,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
     if args.rsa:
         compare.check_distance(args.rsa)
     sources = [compare.parse_source(text) for text in args.networks]
+    out = Path(args.out) if args.out else sources[0].run_dir / f"compare_{measure}.png"
+    _check_out(out)
     ds, source = _shared_recording(args, sources)
     obs, mask = compare.observations(ds)
     if measure == "rsa":  # RDMs grow with the square of the samples
@@ -384,11 +390,18 @@ def cmd_compare(args: argparse.Namespace) -> int:
     nets = [compare.network(s, obs, mask, n) for s, n in zip(sources, compare.names(sources), strict=True)]
     result = compare.compare(nets, measure, args.rsa or "correlation", source)
     print(compare.table(result))
-    out = Path(args.out) if args.out else sources[0].run_dir / f"compare_{measure}.png"
     compare.heatmap(result, out)
     out.with_suffix(".json").write_text(json.dumps(result.to_json(), indent=1))
     print(f"wrote {out} and {out.with_suffix('.json')}")
     return 0
+
+
+def _check_out(path: Path) -> None:
+    """`VnlError` unless `path` can be written (its directory exists), before any work."""
+    from vnl.errors import VnlError
+
+    if not path.parent.is_dir():
+        raise VnlError(f"cannot write {path}: directory {path.parent} does not exist")
 
 
 def _shared_recording(args: argparse.Namespace, sources: list[Any]) -> tuple[Any, str]:
@@ -418,6 +431,44 @@ def _cache_flags(p: argparse.ArgumentParser) -> None:
     g.add_argument("--no-compile-cache", action="store_true", help="compile everything afresh and cache nothing")
 
 
+def _warm_start_flags(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("warm start (a new run that begins with another run's networks)")
+    g.add_argument(
+        "--init-from", metavar="RUN_DIR", help="start from this run's policy, value network and observation normalizer"
+    )
+    g.add_argument("--step", type=int, help="with --init-from: the parent's checkpoint step (default: newest)")
+    g.add_argument(
+        "--keep-optimizer", action="store_true", help="with --init-from: also keep its Adam state (default: fresh)"
+    )
+
+
+def _view_parser(sub: Any) -> None:
+    p = sub.add_parser("view", help="one episode's body, camera, actions, rewards and neurons in Rerun's viewer")
+    p.add_argument("source", metavar="RUN_DIR|RECORDING", help="a run (records one episode) or a `vnl record` file")
+    p.add_argument("--episode", type=int, default=0, help="the recording's episode (default 0)")
+    p.add_argument("--steps", type=int, help="with a run: control steps (default: episode length)")
+    p.add_argument("--step", type=int, help="with a run: checkpoint step (default: newest)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--units", type=int, default=4, help="traces of each layer's most variable units (default 4)")
+    p.add_argument("--no-camera", action="store_true", help="leave out the egocentric camera's images")
+    p.add_argument("--out", help=".rrd path (default <run_dir>/view.rrd or the recording's name with .rrd)")
+    p.add_argument("--open", choices=["desktop", "web"], help="open it in Rerun's desktop viewer or a browser")
+    _cache_flags(p)
+
+
+def _compare_parser(sub: Any) -> None:
+    p = sub.add_parser("compare", help="representational similarity (CKA, RSA) of networks on the same episodes")
+    p.add_argument("networks", nargs="+", metavar="NETWORK", help="run directory, RUN_DIR@STEP, or a recording")
+    p.add_argument("--recording", help="the episodes every network sees (default: the first recording given, else new)")
+    p.add_argument("--episodes", type=int, default=4, help="episodes of a new recording of the first network")
+    p.add_argument("--steps", type=int, help="steps per episode of a new recording (default: episode length)")
+    p.add_argument("--seed", type=int, default=0, help="seed of a new recording")
+    p.add_argument("--rsa", metavar="DISTANCE", help="RSA with this distance (e.g. correlation) instead of linear CKA")
+    p.add_argument("--max-samples", type=int, default=2000, help="RSA: at most this many steps (evenly spaced)")
+    p.add_argument("--out", help="heatmap PNG (default <first run>/compare_<measure>.png; a .json beside it)")
+    _cache_flags(p)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="vnl", description="Virtual Neuroscience Lab")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -444,14 +495,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--num-envs", type=int, help="parallel environments (ppo.num_envs)")
     p.add_argument("--no-video", action="store_true", help="skip the final-policy video")
     p.add_argument("--vision", action="store_true", help="the policy also sees its egocentric camera (vision.enabled)")
-    g = p.add_argument_group("warm start (a new run that begins with another run's networks)")
-    g.add_argument(
-        "--init-from", metavar="RUN_DIR", help="start from this run's policy, value network and observation normalizer"
-    )
-    g.add_argument("--step", type=int, help="with --init-from: the parent's checkpoint step (default: newest)")
-    g.add_argument(
-        "--keep-optimizer", action="store_true", help="with --init-from: also keep its Adam state (default: fresh)"
-    )
+    _warm_start_flags(p)
     _cache_flags(p)
     g = p.add_argument_group("multi-host (one process per host; process 0 writes the run directory)")
     g.add_argument("--distributed", action="store_true", help="join a multi-process run detected from SLURM/MPI")
@@ -499,29 +543,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="NetCDF file (default <run_dir>/record.nc)")
     p.add_argument("--viewer", action="store_true", help="also write episode 0 as a Rerun recording (.rrd) beside it")
     _cache_flags(p)
-
-    p = sub.add_parser("view", help="one episode's body, camera, actions, rewards and neurons in Rerun's viewer")
-    p.add_argument("source", metavar="RUN_DIR|RECORDING", help="a run (records one episode) or a `vnl record` file")
-    p.add_argument("--episode", type=int, default=0, help="the recording's episode (default 0)")
-    p.add_argument("--steps", type=int, help="with a run: control steps (default: episode length)")
-    p.add_argument("--step", type=int, help="with a run: checkpoint step (default: newest)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--units", type=int, default=4, help="traces of each layer's most variable units (default 4)")
-    p.add_argument("--no-camera", action="store_true", help="leave out the egocentric camera's images")
-    p.add_argument("--out", help=".rrd path (default <run_dir>/view.rrd or the recording's name with .rrd)")
-    p.add_argument("--open", choices=["desktop", "web"], help="open it in Rerun's desktop viewer or a browser")
-    _cache_flags(p)
-
-    p = sub.add_parser("compare", help="representational similarity (CKA, RSA) of networks on the same episodes")
-    p.add_argument("networks", nargs="+", metavar="NETWORK", help="run directory, RUN_DIR@STEP, or a recording")
-    p.add_argument("--recording", help="the episodes every network sees (default: the first recording given, else new)")
-    p.add_argument("--episodes", type=int, default=4, help="episodes of a new recording of the first network")
-    p.add_argument("--steps", type=int, help="steps per episode of a new recording (default: episode length)")
-    p.add_argument("--seed", type=int, default=0, help="seed of a new recording")
-    p.add_argument("--rsa", metavar="DISTANCE", help="RSA with this distance (e.g. correlation) instead of linear CKA")
-    p.add_argument("--max-samples", type=int, default=2000, help="RSA: at most this many steps (evenly spaced)")
-    p.add_argument("--out", help="heatmap PNG (default <first run>/compare_<measure>.png; a .json beside it)")
-    _cache_flags(p)
+    _view_parser(sub)
+    _compare_parser(sub)
 
     p = sub.add_parser("analyze", help="PCA of a recorded layer over time, as a PNG")
     p.add_argument("recording", help="a file written by `vnl record`")

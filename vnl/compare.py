@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from vnl.errors import VnlError
+from vnl.io import checkpoint
 
 MEASURES = ("cka", "rsa")
 
@@ -248,6 +249,10 @@ def parse_source(text: str) -> Source:
         path, step = path.with_name(name), int(number)
     if not path.is_dir():
         raise VnlError(f"{text} is neither a run directory nor a recording file")
+    available = checkpoint.steps(path)
+    if not available or (step is not None and step not in available):
+        shown = ", ".join(map(str, available)) or "none"
+        raise VnlError(f"{text}: no checkpoint {'' if step is None else step} in {path} (available steps: {shown})")
     return Source(path, step)
 
 

@@ -302,6 +302,8 @@ def log_episode(rec: Any, ds: Any, env: Any, episode: int = 0, units: int = 4, c
 
     Returns what was logged: {"steps": T, "bodies": [...], "layers": [...], "camera": name | None}.
     """
+    if units < 0:
+        raise VnlError(f"--units must be >= 0, got {units}")
     if not 0 <= episode < ds.sizes["episode"]:
         raise VnlError(f"--episode {episode}: the recording has episodes 0 to {ds.sizes['episode'] - 1}")
     for needed in ("body_pos", "body_quat", "qpos"):
@@ -351,8 +353,11 @@ def write(ds: Any, env: Any, path: str | Path, episode: int = 0, units: int = 4,
     try:
         log_episode(rec, ds, env, episode, units, camera)
         rec.flush()
-    finally:
         rec.disconnect()
+    except BaseException:  # an error or Ctrl-C: no partial file is left behind
+        rec.disconnect()
+        tmp.unlink(missing_ok=True)
+        raise
     tmp.replace(path)
     return path
 
