@@ -6,7 +6,7 @@ On `ant_run_gaps` (any env with `env_config.corridor.gap_length`), with the same
 2. warm        vnl train ENV --steps L      gaps LONG, --init-from OUT/short            -> OUT/warm
 3. scratch     vnl train ENV --steps S+L    gaps LONG                                   -> OUT/scratch
 4. curriculum  vnl train ENV --config OUT/curriculum.yaml  (stages: SHORT for S, LONG for L) -> OUT/curriculum
-5. curves      vnl plot OUT/warm OUT/scratch OUT/curriculum --lineage, of gaps crossed and of reward per episode
+5. curves      vnl plot OUT/warm OUT/scratch OUT/curriculum --lineage: gaps crossed (measure/gaps_crossed), reward
 6. episodes    vnl record OUT/scratch  (long gaps: the episodes every network is shown)
 7. networks    vnl compare OUT/short OUT/warm OUT/scratch OUT/curriculum --recording OUT/scratch/record.nc
 8. OUT/summary.md: each run's last evaluation (gaps crossed, reward, velocity, minutes) and the CKA table
@@ -108,7 +108,7 @@ def summary(args: argparse.Namespace, runs: dict[str, Path], compare_json: Path)
     nan = float("nan")
     for name, run in runs.items():
         r = last(run)
-        crossed, reward = r.get("eval/episode_gaps_crossed", nan), r.get("eval/episode_reward", nan)
+        crossed, reward = r.get("eval/episode_measure/gaps_crossed", nan), r.get("eval/episode_reward", nan)
         lines.append(
             f"| {name} | {gaps_of[name]} | {r['step']:,} | {crossed:.2f} | {reward:.1f} | "
             f"{r.get('eval/mean_forward_velocity', nan):.2f} | {r.get('wall_time', 0) / 60:.1f} |"
@@ -161,8 +161,8 @@ def main() -> None:
         config = ["--config", str(curriculum_file(args, out))]
         train(runs["curriculum"], total, [args.env, *config, *common(args, total)], cache)
     curves = [str(runs[k]) for k in ("warm", "scratch", "curriculum") if k in runs]
-    for metric in ("gaps_crossed", "episode_reward"):
-        vnl("plot", *curves, "--lineage", "--metric", metric, "--out", str(out / f"{metric}.png"), cache=None)
+    for metric, name in (("measure/gaps_crossed", "gaps_crossed"), ("episode_reward", "episode_reward")):
+        vnl("plot", *curves, "--lineage", "--metric", metric, "--out", str(out / f"{name}.png"), cache=None)
     recording = runs["scratch"] / "record.nc"
     if not recording.is_file():
         steps = ["--steps", str(args.record_steps)] if args.record_steps else []

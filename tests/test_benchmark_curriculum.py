@@ -26,7 +26,7 @@ def test_curriculum_benchmark_runs_every_step(tmp_path):
     steps = {"short": 1024, "warm": 1024, "scratch": 2048, "curriculum": 2048}
     for name, last in steps.items():
         records = metrics_io.read(out / name / "metrics.jsonl")
-        assert records[-1]["step"] == last and "eval/episode_gaps_crossed" in records[-1], name
+        assert records[-1]["step"] == last and "eval/episode_measure/gaps_crossed" in records[-1], name
         assert checkpoint.steps(out / name)[-1] == last
     config = {name: yaml.safe_load((out / name / "config.yaml").read_text()) for name in steps}
     gaps = {name: c["env_config"]["corridor"]["gap_length"] for name, c in config.items()}

@@ -98,6 +98,11 @@ class CurriculumLoop:
     def current(self) -> PPOLoop:
         return self.loops[self.stage]
 
+    @property
+    def episode_length(self) -> int:
+        """The current stage's episode length (stages may set their own `episode_length`)."""
+        return self.current.episode_length
+
     # ---- state -------------------------------------------------------------------------------
 
     def init(self, seed: int) -> LoopState:
