@@ -6,6 +6,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import chromium  # tests/chromium.py (pytest puts tests/ on sys.path, as for tiny_env)
 import jax
 import numpy as np
 import pytest
@@ -18,11 +19,6 @@ from vnl.policy import LoadedRun, make_network, make_policy_fn
 from vnl.train import config as train_config
 
 pytestmark = pytest.mark.xdist_group("viewer")
-
-sys.path.insert(0, str(Path(__file__).parent))
-import chromium  # noqa: E402
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def untrained_run(run_dir: Path, env_name: str) -> LoadedRun:
