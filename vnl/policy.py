@@ -10,7 +10,7 @@ from typing import Any
 import jax
 
 from vnl import config as config_lib
-from vnl.envs.base import Env
+from vnl.env import Env
 from vnl.errors import VnlError
 from vnl.io import checkpoint
 from vnl.train.config import TrainConfig

@@ -9,7 +9,7 @@ import jax
 import jax.numpy as jp
 import numpy as np
 
-from vnl.envs.base import Env
+from vnl.env import Env
 from vnl.errors import VnlError
 from vnl.policy import Policy
 

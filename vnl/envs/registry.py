@@ -7,7 +7,7 @@ from collections.abc import Callable
 from typing import Any
 
 from vnl import config as config_lib
-from vnl.envs.base import Env
+from vnl.env import Env
 from vnl.errors import VnlError
 from vnl.tasks import escape_bowl, find_target, run, run_gaps
 

@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jp
 from brax.envs.wrappers import training as brax_training
 
-from vnl.envs.base import State
+from vnl.env import State
 
 
 class AutoResetWrapper(brax_training.Wrapper):
@@ -24,7 +24,7 @@ class AutoResetWrapper(brax_training.Wrapper):
         state = self.env.reset(rng)
         state.info["first_data"] = state.data
         state.info["first_obs"] = state.obs
-        if "pipeline" in state.info:  # a Brax pipeline's own state (vnl.envs.brax_physics)
+        if "pipeline" in state.info:  # a Brax pipeline's own state (vnl.physics.brax_pipelines)
             state.info["first_pipeline"] = state.info["pipeline"]
         return state
 

@@ -19,7 +19,7 @@ from dm_control import mjcf
 from mujoco import mjx
 
 from vnl import physics
-from vnl.envs.base import Env
+from vnl.env import Env
 from vnl.errors import VnlError
 from vnl.walkers import mjx_compat
 from vnl.walkers.base import Walker

@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jp
 import mujoco
 
-from vnl.envs.base import Env, State
+from vnl.env import Env, State
 from vnl.errors import VnlError
 
 CHANNELS = {"rgb": 3, "depth": 1, "rgbd": 4}
