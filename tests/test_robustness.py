@@ -24,7 +24,7 @@ from vnl.errors import VnlError
 from vnl.io import checkpoint
 from vnl.io import metrics as metrics_io
 from vnl.train import config as train_config
-from vnl.train import ppo
+from vnl.train import ppo, rundir
 
 pytestmark = [pytest.mark.xdist_group("robustness"), pytest.mark.usefixtures("point_envs")]
 
@@ -338,8 +338,8 @@ def test_training_on_an_env_that_blows_up_finishes_with_finite_params(tmp_path):
 
 def test_full_disk_fails_before_training(tmp_path, monkeypatch):
     cfg = train_config.build("test_point", "tiny", file_values=QUIET)
-    usage = ppo.shutil.disk_usage(tmp_path)
-    monkeypatch.setattr(ppo.shutil, "disk_usage", lambda _: usage._replace(free=10 << 20))
+    usage = rundir.shutil.disk_usage(tmp_path)
+    monkeypatch.setattr(rundir.shutil, "disk_usage", lambda _: usage._replace(free=10 << 20))
     with pytest.raises(VnlError, match=r"not enough free disk space.*MiB free.*keep_checkpoints"):
         ppo.train(cfg, tmp_path / "run", say=quiet)
     assert checkpoint.steps(tmp_path / "run") == []

@@ -10,6 +10,7 @@ from vnl import config as config_lib
 from vnl.env import Env
 from vnl.errors import VnlError
 from vnl.tasks import escape_bowl, find_target, run, run_gaps
+from vnl.vision.env import VisionConfig, VisionEnv
 
 
 @dataclasses.dataclass(frozen=True)
@@ -19,6 +20,10 @@ class Entry:
     description: str
     # Per-preset training overrides merged over `vnl.train.config.PRESETS[preset]`.
     presets: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        # Several entries are built from one presets dict: each holds its own frozen copy.
+        object.__setattr__(self, "presets", config_lib.freeze(self.presets))
 
 
 # The rat steps ~10x slower than the ant (43 joints, 10 physics steps of 2 ms per control step).
@@ -164,7 +169,7 @@ def register(
     """
     if not hasattr(default_config, "episode_length"):
         raise VnlError(f"{name}: the default config needs an episode_length field")
-    _REGISTRY[name] = Entry(factory, default_config, description, dict(presets or {}))
+    _REGISTRY[name] = Entry(factory, default_config, description, presets or {})
 
 
 def unregister(name: str) -> None:
@@ -210,8 +215,6 @@ def make(name: str, vision: bool | dict[str, Any] | Any = False, **overrides: An
 
     Bad names, unknown keys and invalid values raise `VnlError` before anything is compiled.
     """
-    from vnl.vision.env import VisionConfig, VisionEnv
-
     e = entry(name)
     if isinstance(vision, dict):
         vision = config_lib.from_dict(VisionConfig, {"enabled": True, **vision}, prefix="vision.")

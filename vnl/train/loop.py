@@ -43,8 +43,11 @@ from brax.training.agents.ppo import losses as ppo_losses
 from brax.training.agents.ppo import networks as ppo_networks
 from brax.training.agents.ppo.train import TrainingState
 
+from vnl.envs import randomize
+from vnl.envs.wrappers import wrap_for_training
 from vnl.errors import VnlError
 from vnl.train.config import TrainConfig
+from vnl.train.networks import make_network
 
 AXIS = "i"  # the pmap axis over local devices
 
@@ -110,9 +113,6 @@ class PPOLoop:
     """
 
     def __init__(self, env: Any, config: TrainConfig, training_steps_per_epoch: int | None = None) -> None:
-        from vnl.envs.wrappers import wrap_for_training
-        from vnl.policy import make_network
-
         p = config.ppo
         self.config = config
         self.devices = jax.local_devices()
@@ -177,8 +177,6 @@ class PPOLoop:
         worlds back. Every process holds the parameters of all `num_envs` envs; each device takes
         its slice by its global index (`RandomizedVmapWrapper`).
         """
-        from vnl.envs import randomize
-
         self.randomization: dict[str, dict[str, float]] = {}
         cfg = self.config.randomize
         if not cfg.enabled:
