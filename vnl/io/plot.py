@@ -8,13 +8,11 @@ from typing import Any
 
 def learning_curve(records: list[dict[str, Any]], out: str | Path, title: str = "") -> Path:
     """Eval reward (± std) and mean forward velocity against env steps, saved as a PNG."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure  # no pyplot: no process-wide backend or figure registry
 
     steps = [r["step"] for r in records]
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
+    fig = Figure(figsize=(10, 3.8))
+    axes = fig.subplots(1, 2)
     reward = [r.get("eval/episode_reward") for r in records]
     std = [r.get("eval/episode_reward_std") or 0.0 for r in records]
     ax = axes[0]
@@ -38,7 +36,6 @@ def learning_curve(records: list[dict[str, Any]], out: str | Path, title: str = 
         fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(out, dpi=100)
-    plt.close(fig)
     return Path(out)
 
 
@@ -65,11 +62,8 @@ def _group_key(run_dir: Path) -> str:
 def compare_runs(run_dirs: list[str | Path], metric: str, out: str | Path) -> Path:
     """One PNG with `metric` against env steps for each run; runs sharing a config (seeds) are
     drawn as their mean with a band from the lowest to the highest seed."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     import numpy as np
+    from matplotlib.figure import Figure  # no pyplot: no process-wide backend or figure registry
 
     from vnl.errors import VnlError
     from vnl.io import metrics as metrics_io
@@ -88,7 +82,8 @@ def compare_runs(run_dirs: list[str | Path], metric: str, out: str | Path) -> Pa
     groups: dict[str, list[tuple[Path, list[dict[str, Any]]]]] = {}
     for d, recs in runs:
         groups.setdefault(_group_key(d), []).append((d, recs))
-    fig, ax = plt.subplots(figsize=(7, 4.2))
+    fig = Figure(figsize=(7, 4.2))
+    ax = fig.subplots()
     for i, members in enumerate(groups.values()):
         curves = [
             (
@@ -114,5 +109,4 @@ def compare_runs(run_dirs: list[str | Path], metric: str, out: str | Path) -> Pa
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(out, dpi=100)
-    plt.close(fig)
     return Path(out)
