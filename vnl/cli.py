@@ -1,7 +1,10 @@
 """`vnl` command line: list | train | eval | render | plot | record | analyze.
 
-The only module that parses flags or sets process-wide state (OpenGL backend, warning filters).
-User mistakes print one line `vnl: error: ...` and exit with code 2.
+The only module that parses flags. User mistakes print one line `vnl: error: ...` and exit with
+code 2: flags and numbers are checked by the parser, paths (run directories, recordings, config
+files, `--out` destinations) by `check_inputs` — both before JAX and MuJoCo are imported, so a
+typo costs a fraction of a second — and everything else by the library, as a `VnlError`, before
+anything is compiled.
 """
 
 from __future__ import annotations
@@ -12,15 +15,19 @@ import json
 import os
 import sys
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
+
+from vnl import config as config_lib
+from vnl.errors import VnlError
 
 
-def _configure_process() -> str | None:
+def _configure_process(mujoco_needed: bool = True) -> str | None:
     """Picks a headless OpenGL backend for MuJoCo (must run before mujoco is imported).
 
     Returns the backend, or None when none is installed (training works; video is skipped).
+    `mujoco_needed` False (plot, analyze) skips importing MuJoCo and JAX.
     """
     gl = os.environ.get("MUJOCO_GL")
     if not gl:
@@ -30,7 +37,9 @@ def _configure_process() -> str | None:
             gl = "osmesa"
         if gl:
             os.environ["MUJOCO_GL"] = gl
-    # Third-party deprecation chatter (jaxopt, brax's use of jax APIs) is not actionable here.
+    # Warnings are one line each (`vnl: warning: ...`), like the errors; third-party deprecation
+    # chatter (jaxopt, brax's use of jax APIs) is not actionable here.
+    warnings.showwarning = _show_warning
     warnings.filterwarnings("ignore", category=DeprecationWarning)
     warnings.filterwarnings("ignore", message=".*DISPLAY.*")
     import contextlib
@@ -38,11 +47,17 @@ def _configure_process() -> str | None:
     import logging
 
     logging.getLogger("absl").setLevel(logging.ERROR)
+    if not mujoco_needed:
+        return gl
     # mujoco.mjx prints "Failed to import warp" at import when the (GPU-only) Warp backend is not
     # installed; that is expected here, so the first import happens with stdout captured.
     with contextlib.redirect_stdout(io.StringIO()):
         import mujoco.mjx  # noqa: F401
     return gl
+
+
+def _show_warning(message: Warning | str, category: type[Warning], *args: Any, **kwargs: Any) -> None:
+    sys.stderr.write(f"vnl: warning: {str(message).splitlines()[0] if str(message) else category.__name__}\n")
 
 
 def _say(text: str) -> None:
@@ -111,8 +126,6 @@ def _cameras(env: Any) -> list[str]:
 def cmd_train(args: argparse.Namespace, gl: str | None) -> int:
     import time
 
-    from vnl import config as config_lib
-    from vnl.errors import VnlError
     from vnl.train import config as train_config
     from vnl.train import distributed, ppo
 
@@ -137,19 +150,13 @@ def cmd_train(args: argparse.Namespace, gl: str | None) -> int:
         return _final_video(run_dir, config, gl) if config.log.video else None
 
     if args.resume:
-        if args.env or args.config or args.preset or args.out:
-            raise VnlError("--resume continues a run with its own config: drop ENV, --config, --preset and --out")
         out = Path(args.resume)
-        from vnl.policy import read_config
+        from vnl.train.config import read_config
 
         config = ppo.resume_config(read_config(out), args.set, flags)
         result = ppo.resume(out, args.from_step, args.set, flags, say=say, finish=finish)
     else:
-        if args.from_step is not None:
-            raise VnlError("--from-step needs --resume RUN_DIR")
-        if not args.env:
-            raise VnlError("vnl train needs an ENV (see `vnl list`) or --resume RUN_DIR")
-        file_values = config_lib.load_yaml(args.config) if args.config else {}
+        file_values = getattr(args, "config_values", {})
         config = train_config.build(args.env, args.preset, file_values, args.set, flags)
         if config.log.video:
             # An unknown camera is an error now, not after training.
@@ -186,7 +193,6 @@ def _summarize_run(out: Path, config: Any, wall_time: float) -> None:
 
 
 def _final_video(out: Path, config: Any, gl: str | None) -> Path | None:
-    from vnl.errors import VnlError
     from vnl.policy import load_run
     from vnl.rollout import policy_video
 
@@ -218,10 +224,6 @@ def cmd_eval(args: argparse.Namespace) -> int:
     from vnl.policy import load_run
     from vnl.rollout import rollout, summarize
 
-    if args.episodes < 1:
-        from vnl.errors import VnlError
-
-        raise VnlError(f"--episodes must be >= 1, got {args.episodes}")
     run = load_run(args.run_dir, step=args.step)
     steps = args.steps or run.config.episode_length()
     r = rollout(run.env, run.policy, jax.random.PRNGKey(args.seed), args.episodes, steps)
@@ -244,12 +246,11 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 
 def cmd_render(args: argparse.Namespace, gl: str | None) -> int:
-    from vnl.errors import VnlError
 
     if args.list_cameras:
         if args.run_dir:
             from vnl.envs import registry
-            from vnl.policy import read_config
+            from vnl.train.config import read_config
 
             config = read_config(args.run_dir)
             env = config.make_env()
@@ -259,8 +260,6 @@ def cmd_render(args: argparse.Namespace, gl: str | None) -> int:
             env = registry.make(args.env or "ant_run")
         print("\n".join(_cameras(env)))
         return 0
-    if not args.run_dir:
-        raise VnlError("vnl render needs a RUN_DIR (or --list-cameras)")
     if not gl:
         raise VnlError(_no_gl_line().replace("[vnl] video skipped: ", ""))
     from vnl.policy import load_run
@@ -301,14 +300,116 @@ def cmd_analyze(args: argparse.Namespace) -> int:
     from vnl import analysis
 
     ds = analysis.open_recording(args.recording)
-    layers = analysis.layer_names(ds)
-    layer = args.layer or next((n for n in layers if n.startswith("policy_hidden")), layers[0])
+    layer = args.layer or analysis.default_layer(ds)
     color = args.color or ("x_velocity" if "x_velocity" in ds else "reward")
     out = args.out or str(Path(args.recording).with_name(f"pca_{layer}.png"))
     path, ratio = analysis.pca_figure(ds, layer, color, out)
     shares = ", ".join(f"PC{i + 1} {100 * r:.1f}%" for i, r in enumerate(ratio))
     print(f"PCA of {layer} coloured by {color} ({shares} of variance): {path}")
     return 0
+
+
+# --- checks before anything heavy is imported ---------------------------------------------------
+class _Parser(argparse.ArgumentParser):
+    """argparse's parser, with its errors on one line (`vnl: error: ...`, exit code 2)."""
+
+    def error(self, message: str) -> NoReturn:
+        sys.stderr.write(f"vnl: error: {message} (see `{self.prog} --help`)\n")
+        sys.exit(2)
+
+
+def _integer(minimum: int) -> Callable[[str], int]:
+    """An argparse type: an integer >= `minimum`."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"must be >= {minimum}, got {value}")
+        return value
+
+    parse.__name__ = "integer"
+    return parse
+
+
+_POSITIVE, _NON_NEGATIVE = _integer(1), _integer(0)
+
+
+def _run_dir(path: str, flag: str = "RUN_DIR") -> None:
+    p = Path(path)
+    if not p.exists():
+        raise VnlError(f"run directory not found: {path}")
+    if not p.is_dir():
+        raise VnlError(f"{flag} {path} is a file, not a run directory")
+    if not (p / "config.yaml").is_file():
+        raise VnlError(f"{path} is not a vnl run directory (no config.yaml); give a directory written by `vnl train`")
+    config_lib.load_yaml(str(p / "config.yaml"))  # unreadable or not YAML: one line now, not after imports
+
+
+def _input_file(path: str, what: str) -> None:
+    p = Path(path)
+    if not p.exists():
+        raise VnlError(f"{what} not found: {path}")
+    if p.is_dir():
+        raise VnlError(f"{what} {path} is a directory; give the path of a file")
+    if not os.access(p, os.R_OK):
+        raise VnlError(f"cannot read {what} {path} (permission denied)")
+
+
+def _output_file(path: str | None) -> None:
+    """`--out FILE`: its directory must exist and be writable, and it must not be a directory."""
+    if path is None:
+        return
+    p = Path(path)
+    parent = p.parent
+    if p.is_dir():
+        raise VnlError(f"--out {path} is a directory; give a file name")
+    if not parent.is_dir():
+        what = "is not a directory" if parent.exists() else "does not exist"
+        raise VnlError(f"--out {path}: {parent} {what}; create the directory first or choose another --out")
+    if not os.access(parent, os.W_OK):
+        raise VnlError(f"--out {path}: cannot write to {parent} (permission denied)")
+
+
+def _check_train_flags(args: argparse.Namespace) -> None:
+    if args.resume:
+        if args.env or args.config or args.preset or args.out:
+            raise VnlError("--resume continues a run with its own config: drop ENV, --config, --preset and --out")
+    elif args.from_step is not None:
+        raise VnlError("--from-step needs --resume RUN_DIR")
+    elif not args.env:
+        raise VnlError("vnl train needs an ENV (see `vnl list`) or --resume RUN_DIR")
+    for text in args.set:
+        config_lib.parse_assignment(text)
+
+
+def check_inputs(args: argparse.Namespace) -> None:
+    """Paths and values the parser cannot check; raises `VnlError`. Imports nothing heavy."""
+    command = args.command
+    if command == "train":
+        _check_train_flags(args)
+        if args.resume:
+            _run_dir(args.resume, "--resume")
+        if args.config:
+            _input_file(args.config, "config file")
+            args.config_values = config_lib.load_yaml(args.config)
+        if args.out and Path(args.out).exists() and not Path(args.out).is_dir():
+            raise VnlError(f"--out {args.out} is a file; give a directory for the run")
+    elif command == "render" and not args.run_dir and not args.list_cameras:
+        raise VnlError("vnl render needs a RUN_DIR (or --list-cameras)")
+    elif command in ("eval", "record") or (command == "render" and args.run_dir):
+        _run_dir(args.run_dir)
+    elif command == "plot":
+        for d in args.run_dirs:
+            _run_dir(d)
+            if not (Path(d) / "metrics.jsonl").is_file():
+                raise VnlError(f"{d} has no metrics.jsonl yet; plot runs that have been evaluated at least once")
+    elif command == "analyze":
+        _input_file(args.recording, "recording")
+    if command != "list" and command != "train":
+        _output_file(args.out)
 
 
 # --- parser -----------------------------------------------------------------------------------
@@ -321,7 +422,7 @@ def _cache_flags(p: argparse.ArgumentParser) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="vnl", description="Virtual Neuroscience Lab")
+    parser = _Parser(prog="vnl", description="Virtual Neuroscience Lab")
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("list", help="list environments")
@@ -330,7 +431,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("train", help="train with Brax PPO (or continue a run with --resume)")
     p.add_argument("env", nargs="?", help="environment name (see `vnl list`)")
     p.add_argument("--resume", metavar="RUN_DIR", help="continue this run from its newest good checkpoint")
-    p.add_argument("--from-step", type=int, help="with --resume: continue from this checkpoint step")
+    p.add_argument("--from-step", type=_NON_NEGATIVE, help="with --resume: continue from this checkpoint step")
     p.add_argument("--config", help="YAML file with config values")
     p.add_argument(
         "--set",
@@ -341,24 +442,24 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--preset", help="cpu | gpu | tiny (default: cpu without an accelerator)")
     p.add_argument("--out", help="run directory (default runs/<env>-<timestamp>)")
-    p.add_argument("--seed", type=int)
-    p.add_argument("--steps", type=int, help="total environment steps (ppo.num_timesteps)")
-    p.add_argument("--num-envs", type=int, help="parallel environments (ppo.num_envs)")
+    p.add_argument("--seed", type=_NON_NEGATIVE)
+    p.add_argument("--steps", type=_POSITIVE, help="total environment steps (ppo.num_timesteps)")
+    p.add_argument("--num-envs", type=_POSITIVE, help="parallel environments (ppo.num_envs)")
     p.add_argument("--no-video", action="store_true", help="skip the final-policy video")
     p.add_argument("--vision", action="store_true", help="the policy also sees its egocentric camera (vision.enabled)")
     _cache_flags(p)
     g = p.add_argument_group("multi-host (one process per host; process 0 writes the run directory)")
     g.add_argument("--distributed", action="store_true", help="join a multi-process run detected from SLURM/MPI")
     g.add_argument("--coordinator", metavar="HOST:PORT", help="manual launch: process 0's address")
-    g.add_argument("--num-processes", type=int, metavar="N", help="manual launch: number of processes")
-    g.add_argument("--process-id", type=int, metavar="I", help="manual launch: this process's index (0..N-1)")
+    g.add_argument("--num-processes", type=_POSITIVE, metavar="N", help="manual launch: number of processes")
+    g.add_argument("--process-id", type=_NON_NEGATIVE, metavar="I", help="manual launch: this process's index (0..N-1)")
 
     p = sub.add_parser("eval", help="evaluate a trained run")
     p.add_argument("run_dir")
-    p.add_argument("--episodes", type=int, default=16)
-    p.add_argument("--steps", type=int, help="max steps per episode (default: episode length)")
-    p.add_argument("--step", type=int, help="checkpoint step (default: newest)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--episodes", type=_POSITIVE, default=16)
+    p.add_argument("--steps", type=_POSITIVE, help="max steps per episode (default: episode length)")
+    p.add_argument("--step", type=_NON_NEGATIVE, help="checkpoint step (default: newest)")
+    p.add_argument("--seed", type=_NON_NEGATIVE, default=0)
     p.add_argument("--out", help="JSON file (default <run_dir>/eval.json)")
     _cache_flags(p)
 
@@ -366,11 +467,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("run_dir", nargs="?")
     p.add_argument("--camera", help="camera name (see --list-cameras); default: side")
     p.add_argument("--out", help=".mp4 path (default <run_dir>/render_<camera>.mp4)")
-    p.add_argument("--steps", type=int, help="control steps (default: 10 s)")
-    p.add_argument("--step", type=int, help="checkpoint step (default: newest)")
-    p.add_argument("--width", type=int, default=480)
-    p.add_argument("--height", type=int, default=360)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--steps", type=_POSITIVE, help="control steps (default: 10 s)")
+    p.add_argument("--step", type=_NON_NEGATIVE, help="checkpoint step (default: newest)")
+    p.add_argument("--width", type=_integer(16), default=480)
+    p.add_argument("--height", type=_integer(16), default=360)
+    p.add_argument("--seed", type=_NON_NEGATIVE, default=0)
     p.add_argument("--list-cameras", action="store_true", help="list the model's named cameras")
     p.add_argument("--env", help="with --list-cameras and no RUN_DIR: the environment")
     _cache_flags(p)
@@ -382,10 +483,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("record", help="neural recordings: activations, observations, actions, body pose")
     p.add_argument("run_dir")
-    p.add_argument("--episodes", type=int, default=4)
-    p.add_argument("--steps", type=int, help="control steps per episode (default: episode length)")
-    p.add_argument("--step", type=int, help="checkpoint step (default: newest)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--episodes", type=_POSITIVE, default=4)
+    p.add_argument("--steps", type=_POSITIVE, help="control steps per episode (default: episode length)")
+    p.add_argument("--step", type=_NON_NEGATIVE, help="checkpoint step (default: newest)")
+    p.add_argument("--seed", type=_NON_NEGATIVE, default=0)
     p.add_argument("--stochastic", action="store_true", help="sample actions instead of the mean action")
     p.add_argument("--out", help="NetCDF file (default <run_dir>/record.nc)")
     _cache_flags(p)
@@ -400,8 +501,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    gl = _configure_process()
-    from vnl.errors import VnlError
+    try:
+        check_inputs(args)
+    except VnlError as e:
+        print(f"vnl: error: {e}", file=sys.stderr)
+        return 2
+    gl = _configure_process(mujoco_needed=args.command not in ("plot", "analyze"))
 
     _compilation_cache(args)
     try:
