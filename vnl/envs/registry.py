@@ -43,7 +43,7 @@ _RODENT_PRESETS = {
         },
         "log": {"video_seconds": 4.0},
     },
-    "gpu": {"ppo": {"num_envs": 2048}},  # the notebooks' rodent setting (DESIGN.md §5)
+    "gpu": {"ppo": {"num_envs": 2048}},  # the seed notebooks' rodent setting (README: CLI, presets)
 }
 
 # find_target trains from pixels on a CPU: 32x32 images, a small CNN whose spatial softmax keeps

@@ -102,7 +102,7 @@ HUMANOID_RUN = RunConfig(
     healthy_min_upright=-1.0,
     reset_noise_scale=0.01,
 )
-"""`humanoid_run` defaults: the seed notebooks' MJX humanoid (DESIGN.md §5)."""
+"""`humanoid_run` defaults: the seed notebooks' MJX humanoid (README: Tasks and rewards)."""
 
 BRAX_HUMANOID_RUN = dataclasses.replace(HUMANOID_RUN, walker="brax_humanoid")
 """`brax_humanoid_run`: Brax's humanoid with the same task; runs on MJX or a Brax pipeline (`backend`)."""

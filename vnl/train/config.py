@@ -201,7 +201,7 @@ PRESETS: dict[str, dict[str, Any]] = config_lib.freeze(
     {
         # Fits a 2-core CPU: the ant learns to run in about 10 minutes (see README).
         "cpu": {},
-        # The seed notebooks' GPU hyperparameters (DESIGN.md §5).
+        # The seed notebooks' GPU hyperparameters (README: GPU).
         "gpu": {
             "ppo": {
                 "num_timesteps": 30_000_000,
