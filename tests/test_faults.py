@@ -203,3 +203,47 @@ def test_analyze_refuses_a_one_unit_layer_and_a_file_without_layers(tmp_path):
     assert analysis.default_layer(ds) == "policy_hidden_0"
     with pytest.raises(VnlError, match="no network layers"):
         analysis.open_recording(_recording(tmp_path, {}))
+
+
+# --- other libraries' private APIs, each used in one place ----------------------------------------
+
+
+def test_brax_evaluator_key_is_where_vnl_sets_it():
+    """vnl.train.loop.run_evaluation sets and reads Brax's private `Evaluator._key`: this fails
+    loudly if Brax renames it or stops splitting it in `run_evaluation`."""
+    import jax
+    import tiny_env
+    from brax.training import acting
+
+    from vnl.envs.wrappers import wrap_for_training
+    from vnl.train.loop import run_evaluation
+
+    env = wrap_for_training(tiny_env.PointMass(tiny_env.PointConfig()), episode_length=5)
+
+    def make_policy(params):
+        def policy(obs, key):  # random actions: the metrics depend on the evaluation's key
+            return jax.random.uniform(key, obs.shape[:-1] + (1,), minval=-1, maxval=1), {}
+
+        return policy
+
+    evaluator = acting.Evaluator(
+        env, make_policy, num_eval_envs=4, episode_length=5, action_repeat=1, key=jax.random.PRNGKey(7)
+    )
+    assert np.array_equal(evaluator._key, jax.random.PRNGKey(7))
+    key = jax.random.PRNGKey(3)
+    first, after = run_evaluation(evaluator, key, (), {})
+    assert np.array_equal(after, jax.random.split(key)[0])  # run_evaluation splits `_key` once
+    again, _ = run_evaluation(evaluator, key, (), {})
+    other, _ = run_evaluation(evaluator, jax.random.PRNGKey(4), (), {})
+    reward = "eval/episode_reward"
+    assert first[reward] == again[reward] != other[reward]  # the key we set is the one it used
+
+
+def test_with_model_steps_a_copy_and_leaves_the_env_alone():
+    import tiny_env
+
+    env = tiny_env.PointMass(tiny_env.PointConfig())
+    heavier = env.mjx_model.replace(body_mass=env.mjx_model.body_mass * 2)
+    copy = env.with_model(heavier)
+    assert copy.mjx_model is heavier and env.mjx_model is not heavier
+    assert type(copy) is type(env) and copy.config is env.config
