@@ -206,24 +206,31 @@ class Session:
                 params = self.loop.params(state)
                 checkpoint.save(self.run_dir, step, params, self.config.log.keep_checkpoints, arrays, meta)
         except OSError as e:
-            good = checkpoint.steps(self.run_dir)
-            raise VnlError(
-                f"could not write the checkpoint of step {step:,} in {self.run_dir}: {e.strerror or e}. "
-                + (
-                    f"The last good checkpoint (step {good[-1]:,}) and metrics.jsonl are intact; free some space "
-                    f"and continue with `vnl train --resume {self.run_dir}`."
-                    if good
-                    else "Free some space and start again."
-                )
-            ) from None
+            raise self._write_error(f"the checkpoint of step {step:,}", e) from None
+
+    def _write_error(self, what: str, e: OSError) -> VnlError:
+        """The error for a failed write (a full disk, a lost mount), naming what is intact."""
+        good = checkpoint.steps(self.run_dir)
+        return VnlError(
+            f"could not write {what} in {self.run_dir}: {e.strerror or e}. "
+            + (
+                f"The last good checkpoint (step {good[-1]:,}) and metrics.jsonl up to it are intact; free some "
+                f"space and continue with `vnl train --resume {self.run_dir}`."
+                if good
+                else "Free some space and start again."
+            )
+        )
 
     def _log(self, record: dict[str, Any]) -> None:
         """Process 0: the record to metrics.jsonl and the trackers, and the progress line."""
 
         def write() -> None:
             assert self.tracker is not None
-            with self.stop.critical():
-                self.tracker.write(record)
+            try:
+                with self.stop.critical():
+                    self.tracker.write(record)
+            except OSError as e:
+                raise self._write_error(f"the metrics of step {record['step']:,}", e) from None
             self.records.append(record)
             if self.config.log.progress:
                 elapsed = time.time() - self.t_start
