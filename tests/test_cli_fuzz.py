@@ -107,6 +107,7 @@ def bad_invocations() -> list[list[str]]:
         cases += [[c, *_positional(c), flag] for flag in ["--bogus", "-x", "--stepz", "--out-dir=x", "--verbose=2"]]
     for flag, (commands, smallest) in NUMBERS.items():  # bad numbers
         values = ["abc", "1.5", "", "1e3", "0x10", "--", str(smallest - 1), str(smallest - 5)]
+        values += ["5000", "100000"] if flag in ("--width", "--height") else []
         cases += [[c, *_positional(c), flag, v] for c in commands for v in values]
     for c in ["eval", "record", "analyze", "plot"]:  # missing required positionals
         cases.append([c])

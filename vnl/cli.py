@@ -318,8 +318,8 @@ class _Parser(argparse.ArgumentParser):
         sys.exit(2)
 
 
-def _integer(minimum: int) -> Callable[[str], int]:
-    """An argparse type: an integer >= `minimum`."""
+def _integer(minimum: int, maximum: int | None = None) -> Callable[[str], int]:
+    """An argparse type: an integer >= `minimum` (and <= `maximum`)."""
 
     def parse(text: str) -> int:
         try:
@@ -328,6 +328,8 @@ def _integer(minimum: int) -> Callable[[str], int]:
             raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
         if value < minimum:
             raise argparse.ArgumentTypeError(f"must be >= {minimum}, got {value}")
+        if maximum is not None and value > maximum:
+            raise argparse.ArgumentTypeError(f"must be <= {maximum}, got {value}")
         return value
 
     parse.__name__ = "integer"
@@ -469,8 +471,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help=".mp4 path (default <run_dir>/render_<camera>.mp4)")
     p.add_argument("--steps", type=_POSITIVE, help="control steps (default: 10 s)")
     p.add_argument("--step", type=_NON_NEGATIVE, help="checkpoint step (default: newest)")
-    p.add_argument("--width", type=_integer(16), default=480)
-    p.add_argument("--height", type=_integer(16), default=360)
+    p.add_argument("--width", type=_integer(16, 4096), default=480)
+    p.add_argument("--height", type=_integer(16, 4096), default=360)
     p.add_argument("--seed", type=_NON_NEGATIVE, default=0)
     p.add_argument("--list-cameras", action="store_true", help="list the model's named cameras")
     p.add_argument("--env", help="with --list-cameras and no RUN_DIR: the environment")
