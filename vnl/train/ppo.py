@@ -22,6 +22,7 @@ from typing import Any
 from vnl import config as config_lib
 from vnl.envs.wrappers import wrap_for_training
 from vnl.io import checkpoint
+from vnl.io import metrics as metrics_io
 from vnl.train import distributed, loop, networks, rundir
 from vnl.train.config import TrainConfig, read_config, resume_config
 from vnl.train.session import Finish, Restored, Session, TrainResult
@@ -96,6 +97,8 @@ def resume(
     config = resume_config(saved, assignments, flags)
     loop.check_devices(config)
     step, arrays, meta = checkpoint.load_train_state(run_dir, from_step)
+    if (run_dir / "metrics.jsonl").exists():
+        metrics_io.read(run_dir / "metrics.jsonl")  # a damaged file is an error now, not after compiling
     if config != saved:
         distributed.on_lead(lambda: config_lib.dump_yaml(config, str(run_dir / "config.yaml")))
     return Session(config, run_dir, Restored(step, arrays, meta), say).run(finish)
