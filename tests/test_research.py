@@ -369,5 +369,5 @@ def test_plot_compares_runs_with_a_seed_band(reference, resumed, tmp_path, capsy
     with pytest.raises(VnlError, match="no metric 'nope'"):
         plot.compare_runs([ref], "nope", tmp_path / "x.png")
     assert main(["plot", str(tmp_path / "missing")]) == 2
-    assert "no metrics.jsonl" in capsys.readouterr().err
+    assert "run directory not found" in capsys.readouterr().err
     assert os.path.exists(out)
