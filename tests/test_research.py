@@ -122,23 +122,21 @@ def test_resume_is_bit_exact(reference, resumed):
 
 
 def test_resume_is_bit_exact_on_ant_run(tmp_path):
-    """The same on dm_control's ant (MuJoCo C physics, which compiles in seconds): K steps, then
-    resumed to 2K, equals 2K steps uninterrupted, parameters, whole training state and metrics."""
-
-    def ant(steps, evals):
-        values = {"ppo": {"num_timesteps": steps, "num_evals": evals}, "env_config": {"impl": "c"}}
-        return train_config.build("ant_run", "tiny", file_values={**values, "log": SETTINGS["log"]})
-
-    ppo.train(ant(2 * K, 3), tmp_path / "ref", say=quiet)
-    ppo.train(ant(K, 2), tmp_path / "res", say=quiet)
-    result = ppo.resume(tmp_path / "res", flags={"ppo": {"num_timesteps": 2 * K}}, say=quiet)
-    assert result.steps == 2 * K and checkpoint.steps(tmp_path / "res") == [0, K, 2 * K]
-    _, sa, _ = checkpoint.load_train_state(tmp_path / "ref")
-    _, sb, _ = checkpoint.load_train_state(tmp_path / "res")
+    """The same on dm_control's ant (MuJoCo C physics, which compiles in seconds): a copy of a
+    2K-step run resumed from its step-K checkpoint ends with the original's parameters, whole
+    training state and metrics."""
+    values = {"ppo": {"num_timesteps": 2 * K, "num_evals": 3}, "env_config": {"impl": "c"}, "log": SETTINGS["log"]}
+    ref, res = tmp_path / "ref", tmp_path / "res"
+    ppo.train(train_config.build("ant_run", "tiny", file_values=values), ref, say=quiet)
+    shutil.copytree(ref, res)
+    result = ppo.resume(res, from_step=K, say=quiet)  # sets step 2K aside and recomputes it
+    assert result.steps == 2 * K and checkpoint.steps(res) == [0, K, 2 * K]
+    _, sa, _ = checkpoint.load_train_state(ref)
+    _, sb, _ = checkpoint.load_train_state(res)
     assert sa.keys() == sb.keys() and any(k.startswith(".env") for k in sa)
     for k in sa:
         np.testing.assert_array_equal(sa[k], sb[k], err_msg=k)
-    ra, rb = metrics_io.read(tmp_path / "ref" / "metrics.jsonl"), metrics_io.read(tmp_path / "res" / "metrics.jsonl")
+    ra, rb = metrics_io.read(ref / "metrics.jsonl"), metrics_io.read(res / "metrics.jsonl")
     assert untimed(ra) == untimed(rb) and [r["step"] for r in rb] == [0, K, 2 * K]
     assert ra[-1]["eval/episode_reward"] != ra[0]["eval/episode_reward"]  # the runs did something
 

@@ -214,8 +214,8 @@ class Session:
         return VnlError(
             f"could not write {what} in {self.run_dir}: {e.strerror or e}. "
             + (
-                f"The last good checkpoint (step {good[-1]:,}) and metrics.jsonl up to it are intact; free some "
-                f"space and continue with `vnl train --resume {self.run_dir}`."
+                f"The last good checkpoint (step {good[-1]:,}) and the metrics written so far are intact; free "
+                f"some space and continue with `vnl train --resume {self.run_dir}`."
                 if good
                 else "Free some space and start again."
             )
