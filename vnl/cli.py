@@ -339,12 +339,15 @@ def _integer(minimum: int, maximum: int | None = None) -> Callable[[str], int]:
 _POSITIVE, _NON_NEGATIVE = _integer(1), _integer(0)
 
 
-def _run_dir(path: str, flag: str = "RUN_DIR") -> None:
+def _run_dir(path: str, flag: str = "RUN_DIR", config: bool = True) -> None:
+    """A run directory: it exists, is a directory and (with `config`) holds a readable config.yaml."""
     p = Path(path)
     if not p.exists():
         raise VnlError(f"run directory not found: {path}")
     if not p.is_dir():
         raise VnlError(f"{flag} {path} is a file, not a run directory")
+    if not config:
+        return
     if not (p / "config.yaml").is_file():
         raise VnlError(f"{path} is not a vnl run directory (no config.yaml); give a directory written by `vnl train`")
     config_lib.load_yaml(str(p / "config.yaml"))  # unreadable or not YAML: one line now, not after imports
@@ -405,7 +408,7 @@ def check_inputs(args: argparse.Namespace) -> None:
         _run_dir(args.run_dir)
     elif command == "plot":
         for d in args.run_dirs:
-            _run_dir(d)
+            _run_dir(d, config=False)  # runs are grouped by config.yaml when they have one
             if not (Path(d) / "metrics.jsonl").is_file():
                 raise VnlError(f"{d} has no metrics.jsonl yet; plot runs that have been evaluated at least once")
     elif command == "analyze":
