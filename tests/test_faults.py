@@ -218,7 +218,7 @@ def test_brax_evaluator_key_is_where_vnl_sets_it():
     from vnl.envs.wrappers import wrap_for_training
     from vnl.train.loop import run_evaluation
 
-    env = wrap_for_training(tiny_env.PointMass(tiny_env.PointConfig()), episode_length=5)
+    env = wrap_for_training(tiny_env.PointMass(tiny_env.PointConfig(impl="c")), episode_length=5)  # C: compiles fast
 
     def make_policy(params):
         def policy(obs, key):  # random actions: the metrics depend on the evaluation's key

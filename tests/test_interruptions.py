@@ -45,6 +45,7 @@ np.savez = slow_savez
 say = lambda s: print(s, flush=True)
 settings = {{
     "ppo": {{"num_timesteps": 512 * 48, "num_evals": 25}},
+    "env_config": {{"impl": "c"}},  # MuJoCo C physics: compiles in seconds
     "log": {{"video": False, "keep_checkpoints": 3}},
 }}
 if sys.argv[1] == "train":

@@ -348,7 +348,8 @@ LEAD_FAILS = textwrap.dedent(
     tracking.Tracker.write = full_disk
     port, pid = sys.argv[1:]
     join = ["--coordinator", "127.0.0.1:" + port, "--num-processes", "2", "--process-id", pid]
-    sys.exit(main(["train", "test_point", "--preset", "tiny", "--no-video", "--out", {run!r}, *join]))
+    c_physics = ["--set", "env_config.impl=c"]  # compiles in seconds
+    sys.exit(main(["train", "test_point", "--preset", "tiny", "--no-video", "--out", {run!r}, *c_physics, *join]))
     """
 )
 
