@@ -280,13 +280,13 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def _two_processes(script: str, mode: str) -> tuple[list[dict], list[str]]:
-    """Runs `script` as processes 0 and 1 of one jax.distributed run; (results, stdouts)."""
+def _launch_two(script: str, *args: str) -> tuple[list[int], list[tuple[str, str]]]:
+    """Runs `script` as processes 0 and 1 of one jax.distributed run: (exit codes, (stdout, stderr)s)."""
     env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
     port = str(_free_port())
     procs = [
         subprocess.Popen(
-            [sys.executable, "-c", script, port, str(i), mode],
+            [sys.executable, "-c", script, port, str(i), *args],
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,
@@ -300,8 +300,14 @@ def _two_processes(script: str, mode: str) -> tuple[list[dict], list[str]]:
     finally:
         for p in procs:
             p.kill()
-    for p, (stdout, stderr) in zip(procs, outs, strict=True):
-        assert p.returncode == 0, stdout[-3000:] + stderr[-3000:]
+    return [p.returncode for p in procs], outs
+
+
+def _two_processes(script: str, mode: str) -> tuple[list[dict], list[str]]:
+    """Runs `script` as processes 0 and 1 of one jax.distributed run; (results, stdouts)."""
+    codes, outs = _launch_two(script, mode)
+    for code, (stdout, stderr) in zip(codes, outs, strict=True):
+        assert code == 0, stdout[-3000:] + stderr[-3000:]
     results = [json.loads(stdout.split("RESULT")[-1]) for stdout, _ in outs]
     assert [r["rc"] for r in results] == [0, 0]
     assert all(r["processes"] == 2 and r["devices"] == 2 and r["finite"] for r in results)
@@ -357,26 +363,8 @@ LEAD_FAILS = textwrap.dedent(
 def test_an_error_on_process_0_stops_every_process(tmp_path):
     """Process 0 alone writes the metrics; when that fails the other process must not wait in
     the next collective: both stop, the other one with a line pointing at process 0."""
-    script = LEAD_FAILS.format(tests=str(ROOT / "tests"), run=str(tmp_path / "run"))
-    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
-    port = str(_free_port())
-    procs = [
-        subprocess.Popen(
-            [sys.executable, "-c", script, port, str(i)],
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-            cwd=ROOT,
-            env=env,
-        )
-        for i in range(2)
-    ]
-    try:
-        outs = [p.communicate(timeout=600) for p in procs]
-    finally:
-        for p in procs:
-            p.kill()
-    assert [p.returncode for p in procs] == [2, 2], outs
+    codes, outs = _launch_two(LEAD_FAILS.format(tests=str(ROOT / "tests"), run=str(tmp_path / "run")))
+    assert codes == [2, 2], outs
     assert "vnl: error: could not write the metrics of step" in outs[0][1], outs[0][1][-2000:]
     assert "Traceback" not in outs[0][1] + outs[1][1]
     assert "process 0 stopped with an error" in outs[1][1], outs[1][1][-2000:]
