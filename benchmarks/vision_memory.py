@@ -28,7 +28,7 @@ import jax
 import jax.numpy as jp
 import numpy as np
 
-from vnl.envs.base import Env, State
+from vnl.env import Env, State
 from vnl.train import config as train_config
 from vnl.train.loop import PPOLoop
 

@@ -1,6 +1,7 @@
 """The `vnl` command end to end (train -> eval -> render) and its one-line errors."""
 
 import json
+import re
 import signal
 import subprocess
 import sys
@@ -14,6 +15,8 @@ from vnl import cli
 from vnl.io import checkpoint
 from vnl.io import metrics as metrics_io
 from vnl.io.video import read_mp4
+from vnl.train.config import read_config
+from vnl.train.loop import epoch_length
 
 pytestmark = pytest.mark.xdist_group("cli")
 
@@ -128,10 +131,15 @@ def test_sigterm_stops_cleanly_and_keeps_checkpoint(tmp_path):
     assert proc.returncode == 130, text + stderr
     assert "stopped at step" in text and "vnl eval" in text
     assert "Traceback" not in stderr
-    steps = checkpoint.steps(out)
-    assert steps and steps[-1] < 2_000_000
-    records = metrics_io.read(out / "metrics.jsonl")
-    assert records and all("step" in r for r in records)
+    # It stops at the first evaluation after the signal (the step-0 one, if the signal lands
+    # while it is logged), with a checkpoint there that the metrics reach too: at most two
+    # epochs past the progress line after which the signal was sent.
+    stopped = int(re.search(r"stopped at step ([\d,]+)", text).group(1).replace(",", ""))
+    signalled = int(re.search(r"\[vnl\] step +([\d,]+)/", "".join(lines)).group(1).replace(",", ""))
+    config = read_config(out)
+    epoch = epoch_length(config) * config.ppo.env_steps_per_training_step  # 5,120 env steps
+    assert checkpoint.steps(out)[-1] == stopped == metrics_io.read(out / "metrics.jsonl")[-1]["step"]
+    assert signalled <= stopped <= signalled + 2 * epoch < 2_000_000
 
 
 @pytest.mark.parametrize(
@@ -170,6 +178,6 @@ def test_missing_checkpoint_and_unknown_camera(trained_run, tmp_path, capsys):
 def test_list_shows_every_env(capsys):
     assert cli.main(["list", "--verbose"]) == 0
     out = capsys.readouterr().out
-    assert "ant_run" in out and "humanoid_run" in out
-    assert "336" in out and "27" in out  # observation widths
+    assert re.search(r"^ant_run +27 +8 ", out, re.M), out  # observation and action widths
+    assert re.search(r"^humanoid_run +336 +21 ", out, re.M), out
     assert "qpos[2:]" in out and "cameras:" in out

@@ -9,7 +9,7 @@ import pytest
 import vnl
 from vnl.arenas import gaps
 from vnl.rollout import Rollout, summarize
-from vnl.train.ppo import make_record
+from vnl.train.progress import make_record
 
 
 def test_gaps_behind_counts_the_gaps_whose_far_edge_was_passed():

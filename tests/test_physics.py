@@ -363,3 +363,28 @@ def test_trains_with_c_physics_on_two_devices(tmp_path):
 
     _, params = checkpoint.load(tmp_path / "run")
     assert all(np.isfinite(np.asarray(x)).all() for x in jax.tree.leaves(params))
+
+
+def test_mjx_private_fields_that_vnl_reads_are_still_there():
+    """`vnl/physics/mjx_physics.py` is vnl's only reader of MJX's implementation data
+    (`data._impl.ten_J`, `.ten_velocity`, `.cinert`: MJX 3.17 has no public field for them). This
+    fails loudly if MJX moves or changes them: the values must equal MuJoCo C's."""
+    from mujoco import mjx
+
+    from vnl.physics import mjx_physics
+
+    xml = """<mujoco><worldbody><body><joint name="a" type="hinge" axis="0 1 0"/>
+      <geom type="capsule" fromto="0 0 0 .3 0 0" size=".05"/>
+      <body pos=".3 0 0"><joint name="b" type="hinge" axis="0 1 0"/><geom type="sphere" size=".05"/></body>
+      </body></worldbody><tendon><fixed name="t"><joint joint="a" coef="1"/><joint joint="b" coef="-0.5"/></fixed>
+      </tendon></mujoco>"""
+    m = mujoco.MjModel.from_xml_string(xml)
+    d = mujoco.MjData(m)
+    d.qpos[:] = [0.3, -0.7]
+    d.qvel[:] = [1.5, 2.0]
+    mujoco.mj_forward(m, d)
+    mx = mjx.put_model(m)
+    dx = jax.jit(lambda q, v: mjx_physics.sync(mx, mjx.make_data(mx).replace(qpos=q, qvel=v)))(d.qpos, d.qvel)
+    np.testing.assert_allclose(mjx_physics.ten_velocity(dx), d.ten_velocity, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(mjx_physics.cinert(dx), d.cinert, rtol=1e-5, atol=1e-6)
+    assert float(d.ten_velocity[0]) != 0.0  # the check compares something

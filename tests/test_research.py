@@ -121,6 +121,26 @@ def test_resume_is_bit_exact(reference, resumed):
     assert yaml.safe_load((res / "config.yaml").read_text())["ppo"]["num_timesteps"] == 2 * K
 
 
+def test_resume_is_bit_exact_on_ant_run(tmp_path):
+    """The same on dm_control's ant (MuJoCo C physics, which compiles in seconds): a copy of a
+    2K-step run resumed from its step-K checkpoint ends with the original's parameters, whole
+    training state and metrics."""
+    values = {"ppo": {"num_timesteps": 2 * K, "num_evals": 3}, "env_config": {"impl": "c"}, "log": SETTINGS["log"]}
+    ref, res = tmp_path / "ref", tmp_path / "res"
+    ppo.train(train_config.build("ant_run", "tiny", file_values=values), ref, say=quiet)
+    shutil.copytree(ref, res)
+    result = ppo.resume(res, from_step=K, say=quiet)  # sets step 2K aside and recomputes it
+    assert result.steps == 2 * K and checkpoint.steps(res) == [0, K, 2 * K]
+    _, sa, _ = checkpoint.load_train_state(ref)
+    _, sb, _ = checkpoint.load_train_state(res)
+    assert sa.keys() == sb.keys() and any(k.startswith(".env") for k in sa)
+    for k in sa:
+        np.testing.assert_array_equal(sa[k], sb[k], err_msg=k)
+    ra, rb = metrics_io.read(ref / "metrics.jsonl"), metrics_io.read(res / "metrics.jsonl")
+    assert untimed(ra) == untimed(rb) and [r["step"] for r in rb] == [0, K, 2 * K]
+    assert ra[-1]["eval/episode_reward"] != ra[0]["eval/episode_reward"]  # the runs did something
+
+
 def test_sigterm_then_resume_gives_the_uninterrupted_result(reference, tmp_path):
     """`vnl train` stopped by SIGTERM mid-run and resumed to the end equals the uninterrupted run."""
     ref, _ = reference
@@ -347,5 +367,5 @@ def test_plot_compares_runs_with_a_seed_band(reference, resumed, tmp_path, capsy
     with pytest.raises(VnlError, match="no metric 'nope'"):
         plot.compare_runs([ref], "nope", tmp_path / "x.png")
     assert main(["plot", str(tmp_path / "missing")]) == 2
-    assert "no metrics.jsonl" in capsys.readouterr().err
+    assert "run directory not found" in capsys.readouterr().err
     assert os.path.exists(out)

@@ -4,6 +4,7 @@ import functools
 import json
 import os
 import random
+import re
 import subprocess
 import sys
 import textwrap
@@ -24,7 +25,9 @@ from vnl.errors import VnlError
 from vnl.io import checkpoint
 from vnl.io import metrics as metrics_io
 from vnl.train import config as train_config
-from vnl.train import ppo
+from vnl.train import ppo, rundir
+from vnl.train.config import read_config
+from vnl.train.loop import PPOLoop
 
 pytestmark = [pytest.mark.xdist_group("robustness"), pytest.mark.usefixtures("point_envs")]
 
@@ -167,7 +170,14 @@ TWO_DEVICES = textwrap.dedent(
     from vnl.train import config as tc
     from vnl.train.loop import PPOLoop
     from vnl.envs import registry
+    from vnl.train import ppo
     out = {{"devices": jax.local_device_count()}}
+    train = ppo.train
+    def spy(*args, **kwargs):  # the final parameters as the 2-device run holds them
+        result = train(*args, **kwargs)
+        np.savez({params!r}, *[np.asarray(x) for x in jax.tree.leaves(result.params)])
+        return result
+    ppo.train = spy
     base = ["train", "test_point", "--preset", "tiny", "--no-video", "--out"]
     rand = ["--set", "randomize.joint_damping=[0.2,5.0]", "--set", "ppo.num_timesteps=2048"]
     out["bad_rc"] = main([*base, {bad!r}, "--set", "ppo.num_minibatches=16", "--set", "ppo.batch_size=1"])
@@ -187,7 +197,10 @@ TWO_DEVICES = textwrap.dedent(
 
 
 def test_trains_on_two_devices_and_the_checkpoint_resumes_on_one(tmp_path):
-    script = TWO_DEVICES.format(tests=str(ROOT / "tests"), bad=str(tmp_path / "bad"), run=str(tmp_path / "run"))
+    params_file = tmp_path / "params.npz"
+    script = TWO_DEVICES.format(
+        tests=str(ROOT / "tests"), bad=str(tmp_path / "bad"), run=str(tmp_path / "run"), params=str(params_file)
+    )
     env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
     p = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, cwd=ROOT, env=env, timeout=900)
     assert p.returncode == 0, p.stdout[-3000:] + p.stderr[-3000:]
@@ -199,13 +212,29 @@ def test_trains_on_two_devices_and_the_checkpoint_resumes_on_one(tmp_path):
     assert result["local_equals_slices"] and result["distinct"] == 16
     run = tmp_path / "run"
     assert set(json.loads((run / "randomization.json").read_text())) == {"joint_damping"}
-    # This process has one device: the 2-device checkpoint loads and training continues.
+    # This process has one device: the 2-device checkpoint loads with the very values the
+    # 2-device run held, its whole training state survives the change of device count, and
+    # training continues from it.
     _, params = checkpoint.load(run)
-    assert all(np.isfinite(np.asarray(x)).all() for x in jax.tree.leaves(params))
+    with np.load(params_file) as saved:
+        held = [saved[f"arr_{i}"] for i in range(len(saved.files))]
+    assert len(held) == len(jax.tree.leaves(params)) > 0
+    for got, want in zip(jax.tree.leaves(params), held, strict=True):
+        np.testing.assert_array_equal(np.asarray(got), want)
+    step, arrays, _ = checkpoint.load_train_state(run)
+    config = read_config(run)
+    loop = PPOLoop(config.make_env(), config, training_steps_per_epoch=None)
+    assert loop.n_devices == 1 and step == 2048
+    back = loop.to_arrays(loop.from_arrays(arrays))
+    assert back.keys() == arrays.keys()
+    for key, value in arrays.items():
+        np.testing.assert_array_equal(back[key], value, err_msg=key)
+    before = metrics_io.read(run / "metrics.jsonl")
     result = ppo.resume(run, assignments=["ppo.num_timesteps=4096"], say=quiet)
     assert not result.interrupted and result.steps == 4096
     assert all(np.isfinite(np.asarray(x)).all() for x in jax.tree.leaves(result.params))
-    assert [r["step"] for r in metrics_io.read(run / "metrics.jsonl")] == [0, 2048, 4096]
+    after = metrics_io.read(run / "metrics.jsonl")
+    assert [r["step"] for r in after] == [0, 2048, 4096] and after[:2] == before
 
 
 TWO_PROCESSES = textwrap.dedent(
@@ -251,13 +280,13 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def _two_processes(script: str, mode: str) -> tuple[list[dict], list[str]]:
-    """Runs `script` as processes 0 and 1 of one jax.distributed run; (results, stdouts)."""
+def _launch_two(script: str, *args: str) -> tuple[list[int], list[tuple[str, str]]]:
+    """Runs `script` as processes 0 and 1 of one jax.distributed run: (exit codes, (stdout, stderr)s)."""
     env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
     port = str(_free_port())
     procs = [
         subprocess.Popen(
-            [sys.executable, "-c", script, port, str(i), mode],
+            [sys.executable, "-c", script, port, str(i), *args],
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,
@@ -271,8 +300,14 @@ def _two_processes(script: str, mode: str) -> tuple[list[dict], list[str]]:
     finally:
         for p in procs:
             p.kill()
-    for p, (stdout, stderr) in zip(procs, outs, strict=True):
-        assert p.returncode == 0, stdout[-3000:] + stderr[-3000:]
+    return [p.returncode for p in procs], outs
+
+
+def _two_processes(script: str, mode: str) -> tuple[list[dict], list[str]]:
+    """Runs `script` as processes 0 and 1 of one jax.distributed run; (results, stdouts)."""
+    codes, outs = _launch_two(script, mode)
+    for code, (stdout, stderr) in zip(codes, outs, strict=True):
+        assert code == 0, stdout[-3000:] + stderr[-3000:]
     results = [json.loads(stdout.split("RESULT")[-1]) for stdout, _ in outs]
     assert [r["rc"] for r in results] == [0, 0]
     assert all(r["processes"] == 2 and r["devices"] == 2 and r["finite"] for r in results)
@@ -301,6 +336,38 @@ def test_trains_on_two_processes_and_the_checkpoint_resumes_on_one(tmp_path):
     assert not result.interrupted and result.steps == 6144
     assert [r["step"] for r in metrics_io.read(run / "metrics.jsonl")] == [0, 2048, 4096, 6144]
     assert all(np.isfinite(np.asarray(x)).all() for x in jax.tree.leaves(result.params))
+
+
+LEAD_FAILS = textwrap.dedent(
+    """
+    import sys
+    sys.path.insert(0, {tests!r})
+    import tiny_env; tiny_env.register()
+    import jax
+    from vnl.cli import main
+    from vnl.io import tracking
+
+    def full_disk(self, record):  # process 0's metrics write fails at the first evaluation after step 0
+        if record["step"] > 0 and jax.process_index() == 0:
+            raise OSError(28, "No space left on device")
+
+    tracking.Tracker.write = full_disk
+    port, pid = sys.argv[1:]
+    join = ["--coordinator", "127.0.0.1:" + port, "--num-processes", "2", "--process-id", pid]
+    c_physics = ["--set", "env_config.impl=c"]  # compiles in seconds
+    sys.exit(main(["train", "test_point", "--preset", "tiny", "--no-video", "--out", {run!r}, *c_physics, *join]))
+    """
+)
+
+
+def test_an_error_on_process_0_stops_every_process(tmp_path):
+    """Process 0 alone writes the metrics; when that fails the other process must not wait in
+    the next collective: both stop, the other one with a line pointing at process 0."""
+    codes, outs = _launch_two(LEAD_FAILS.format(tests=str(ROOT / "tests"), run=str(tmp_path / "run")))
+    assert codes == [2, 2], outs
+    assert "vnl: error: could not write the metrics of step" in outs[0][1], outs[0][1][-2000:]
+    assert "Traceback" not in outs[0][1] + outs[1][1]
+    assert "process 0 stopped with an error" in outs[1][1], outs[1][1][-2000:]
 
 
 def test_multi_process_flags_are_checked_before_joining():
@@ -338,8 +405,8 @@ def test_training_on_an_env_that_blows_up_finishes_with_finite_params(tmp_path):
 
 def test_full_disk_fails_before_training(tmp_path, monkeypatch):
     cfg = train_config.build("test_point", "tiny", file_values=QUIET)
-    usage = ppo.shutil.disk_usage(tmp_path)
-    monkeypatch.setattr(ppo.shutil, "disk_usage", lambda _: usage._replace(free=10 << 20))
+    usage = rundir.shutil.disk_usage(tmp_path)
+    monkeypatch.setattr(rundir.shutil, "disk_usage", lambda _: usage._replace(free=10 << 20))
     with pytest.raises(VnlError, match=r"not enough free disk space.*MiB free.*keep_checkpoints"):
         ppo.train(cfg, tmp_path / "run", say=quiet)
     assert checkpoint.steps(tmp_path / "run") == []
@@ -386,9 +453,20 @@ def _keys(cls, prefix=""):
 VALUES = [-1, 0, 1, 3, 2.5, -0.5, 1e9, True, "x", "swish", None, [], [1, 2], [0.5, 1.5], [2.0, 1.0], {"a": 1}, "1e3"]
 
 
+def _names_key(key: str, message: str) -> bool:
+    """Whether `message` names `key`: its last part, or a part of it below the top-level section
+    (`randomize.friction` for `randomize.friction.lo`), as a whole word. The section alone
+    (`ppo`, `log`) does not count: it would match errors about any key."""
+    parts = key.split(".")
+    names = {parts[-1]} | {".".join(parts[:j]) for j in range(2, len(parts) + 1)}
+    return any(re.search(rf"\b{re.escape(n)}\b", message) for n in names)
+
+
 def test_config_fuzz_errors_name_the_key():
     """Random valid/invalid keys and values: each either builds or raises a VnlError naming the
     offending key; nothing else escapes (no TypeError/ValueError from deep inside)."""
+    assert not _names_key("ppo.learning_rate", "ppo: num_envs must be >= 1")  # the section is not enough
+    assert _names_key("randomize.friction.lo", "randomize.friction: expected a list")
     keys = [k for k in _keys(train_config.TrainConfig) if k not in ("env", "env_config")]
     env_keys = [f"env_config.{k}" for k in config_lib.to_dict(registry.env_config("ant_run", {}))]
     rng = random.Random(0)
@@ -406,8 +484,7 @@ def test_config_fuzz_errors_name_the_key():
             outcomes["ok"] += 1
         except VnlError as e:
             outcomes["error"] += 1
-            named = [k for k in assignments if k.split(".")[-1] in str(e) or k.split(".")[0] in str(e)]
-            assert named, f"{assignments} -> {e}"
+            assert any(_names_key(k, str(e)) for k in assignments), f"{assignments} -> {e}"
     assert outcomes["ok"] > 10 and outcomes["error"] > 100, outcomes
 
 

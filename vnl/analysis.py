@@ -22,13 +22,33 @@ def open_recording(path: str | Path) -> Any:
         raise VnlError(f"recording not found: {path} (write one with `vnl record RUN_DIR`)")
     try:
         with xr.open_dataset(path, engine="h5netcdf") as ds:
-            return ds.load()
+            ds = ds.load()
     except (OSError, ValueError) as e:
-        raise VnlError(f"{path} is not a readable vnl recording: {e}") from None
+        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        raise VnlError(f"{path} is not a readable vnl recording: {first}") from None
+    missing = [v for v in ("active", "time") if v not in ds.variables]
+    if missing or not layer_names(ds):
+        what = f"no {', '.join(missing)}" if missing else "no network layers (policy_*, value_*)"
+        raise VnlError(f"{path} is not a vnl recording ({what}); write one with `vnl record RUN_DIR`")
+    return ds
 
 
 def layer_names(ds: Any) -> list[str]:
+    """Names of the recorded network layers (`policy_hidden_0`, ..., `value_output`)."""
     return [v for v in ds.data_vars if v.startswith(("policy_", "value_"))]
+
+
+def default_layer(ds: Any) -> str:
+    """The first policy hidden layer, else the first layer with at least 2 units."""
+    layers = [n for n in layer_names(ds) if units(ds, n) >= 2]
+    if not layers:
+        raise VnlError("no layer of this recording has 2 or more units; a PCA needs at least 2")
+    return next((n for n in layers if n.startswith("policy_hidden")), layers[0])
+
+
+def units(ds: Any, layer: str) -> int:
+    """Number of units of `layer` (its last axis)."""
+    return int(ds[layer].shape[-1])
 
 
 def pca(activity: np.ndarray, n_components: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -50,14 +70,14 @@ def pca_figure(ds: Any, layer: str, color: str, out: str | Path) -> tuple[Path, 
     Left: the trajectory in the plane of the first two PCs; right: PCs 1-3 over time for
     episode 0. Returns (path, explained variance ratio of the first 3 PCs).
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure  # no pyplot: no process-wide backend or figure registry
 
     layers = layer_names(ds)
     if layer not in layers:
         raise VnlError(f"no layer {layer!r} in the recording; layers: {', '.join(layers)}")
+    if units(ds, layer) < 2:
+        wide = ", ".join(n for n in layers if units(ds, n) >= 2)
+        raise VnlError(f"layer {layer!r} has {units(ds, layer)} unit; a PCA needs at least 2: use one of {wide}")
     colorable = [v for v in ds.data_vars if ds[v].dims == ("episode", "time")]
     if color not in colorable:
         raise VnlError(f"cannot colour by {color!r}; per-step variables: {', '.join(colorable)}")
@@ -67,7 +87,8 @@ def pca_figure(ds: Any, layer: str, color: str, out: str | Path) -> tuple[Path, 
         raise VnlError("the recording has fewer than 3 active steps; record longer episodes")
     scores, _, ratio = pca(act[mask].astype(np.float64))
     c = ds[color].values[mask]
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    fig = Figure(figsize=(11, 4.2))
+    axes = fig.subplots(1, 2)
     ax = axes[0]
     sc = ax.scatter(scores[:, 0], scores[:, 1], c=c, s=4, cmap="viridis")
     fig.colorbar(sc, ax=ax, label=color)
@@ -87,5 +108,4 @@ def pca_figure(ds: Any, layer: str, color: str, out: str | Path) -> tuple[Path, 
     fig.tight_layout()
     out = Path(out)
     fig.savefig(out, dpi=100)
-    plt.close(fig)
     return out, ratio

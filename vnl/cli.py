@@ -1,7 +1,10 @@
 """`vnl` command line: list | train | eval | render | plot | record | analyze | compare | view.
 
-The only module that parses flags or sets process-wide state (OpenGL backend, warning filters).
-User mistakes print one line `vnl: error: ...` and exit with code 2.
+The only module that parses flags. User mistakes print one line `vnl: error: ...` and exit with
+code 2: flags and numbers are checked by the parser, paths (run directories, recordings, config
+files, `--out` destinations) by `check_inputs` — both before JAX and MuJoCo are imported, so a
+typo costs a fraction of a second — and everything else by the library, as a `VnlError`, before
+anything is compiled.
 """
 
 from __future__ import annotations
@@ -12,15 +15,19 @@ import json
 import os
 import sys
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
+
+from vnl import config as config_lib
+from vnl.errors import VnlError
 
 
-def _configure_process() -> str | None:
+def _configure_process(mujoco_needed: bool = True) -> str | None:
     """Picks a headless OpenGL backend for MuJoCo (must run before mujoco is imported).
 
     Returns the backend, or None when none is installed (training works; video is skipped).
+    `mujoco_needed` False (plot, analyze) skips importing MuJoCo and JAX.
     """
     gl = os.environ.get("MUJOCO_GL")
     if not gl:
@@ -30,7 +37,9 @@ def _configure_process() -> str | None:
             gl = "osmesa"
         if gl:
             os.environ["MUJOCO_GL"] = gl
-    # Third-party deprecation chatter (jaxopt, brax's use of jax APIs) is not actionable here.
+    # Warnings are one line each (`vnl: warning: ...`), like the errors; third-party deprecation
+    # chatter (jaxopt, brax's use of jax APIs) is not actionable here.
+    warnings.showwarning = _show_warning
     warnings.filterwarnings("ignore", category=DeprecationWarning)
     warnings.filterwarnings("ignore", message=".*DISPLAY.*")
     import contextlib
@@ -38,11 +47,17 @@ def _configure_process() -> str | None:
     import logging
 
     logging.getLogger("absl").setLevel(logging.ERROR)
+    if not mujoco_needed:
+        return gl
     # mujoco.mjx prints "Failed to import warp" at import when the (GPU-only) Warp backend is not
     # installed; that is expected here, so the first import happens with stdout captured.
     with contextlib.redirect_stdout(io.StringIO()):
         import mujoco.mjx  # noqa: F401
     return gl
+
+
+def _show_warning(message: Warning | str, category: type[Warning], *args: Any, **kwargs: Any) -> None:
+    sys.stderr.write(f"vnl: warning: {str(message).splitlines()[0] if str(message) else category.__name__}\n")
 
 
 def _say(text: str) -> None:
@@ -111,8 +126,6 @@ def _cameras(env: Any) -> list[str]:
 def cmd_train(args: argparse.Namespace, gl: str | None) -> int:
     import time
 
-    from vnl import config as config_lib
-    from vnl.errors import VnlError
     from vnl.train import config as train_config
     from vnl.train import distributed, ppo
 
@@ -136,28 +149,16 @@ def cmd_train(args: argparse.Namespace, gl: str | None) -> int:
     def finish(run_dir: Path) -> Path | None:
         return _final_video(run_dir, config, gl) if config.log.video else None
 
-    if args.step is not None and not args.init_from:
-        raise VnlError("--step needs --init-from RUN_DIR (to continue a run: --resume RUN_DIR --from-step N)")
-    if args.keep_optimizer and not args.init_from:
-        raise VnlError("--keep-optimizer needs --init-from RUN_DIR")
     if args.init_from:
-        if args.resume:
-            raise VnlError("--init-from starts a new run; --resume continues one: use one of them")
         flags["init"] = {"run": args.init_from, "step": args.step, "keep_optimizer": args.keep_optimizer}
     if args.resume:
-        if args.env or args.config or args.preset or args.out:
-            raise VnlError("--resume continues a run with its own config: drop ENV, --config, --preset and --out")
         out = Path(args.resume)
-        from vnl.policy import read_config
+        from vnl.train.config import read_config
 
         config = ppo.resume_config(read_config(out), args.set, flags)
         result = ppo.resume(out, args.from_step, args.set, flags, say=say, finish=finish)
     else:
-        if args.from_step is not None:
-            raise VnlError("--from-step needs --resume RUN_DIR")
-        if not args.env:
-            raise VnlError("vnl train needs an ENV (see `vnl list`) or --resume RUN_DIR")
-        file_values = config_lib.load_yaml(args.config) if args.config else {}
+        file_values = getattr(args, "config_values", {})
         if args.init_from:  # the parent's networks, unless the file or --set give others
             from vnl.train import warm_start
 
@@ -198,7 +199,6 @@ def _summarize_run(out: Path, config: Any, wall_time: float) -> None:
 
 
 def _final_video(out: Path, config: Any, gl: str | None) -> Path | None:
-    from vnl.errors import VnlError
     from vnl.policy import load_run
     from vnl.rollout import policy_video
 
@@ -230,10 +230,6 @@ def cmd_eval(args: argparse.Namespace) -> int:
     from vnl.policy import load_run
     from vnl.rollout import rollout, summarize
 
-    if args.episodes < 1:
-        from vnl.errors import VnlError
-
-        raise VnlError(f"--episodes must be >= 1, got {args.episodes}")
     run = load_run(args.run_dir, step=args.step)
     steps = args.steps or run.config.episode_length()
     r = rollout(run.env, run.policy, jax.random.PRNGKey(args.seed), args.episodes, steps)
@@ -256,12 +252,11 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 
 def cmd_render(args: argparse.Namespace, gl: str | None) -> int:
-    from vnl.errors import VnlError
 
     if args.list_cameras:
         if args.run_dir:
             from vnl.envs import registry
-            from vnl.policy import read_config
+            from vnl.train.config import read_config
 
             config = read_config(args.run_dir)
             env = config.make_env()
@@ -271,8 +266,6 @@ def cmd_render(args: argparse.Namespace, gl: str | None) -> int:
             env = registry.make(args.env or "ant_run")
         print("\n".join(_cameras(env)))
         return 0
-    if not args.run_dir:
-        raise VnlError("vnl render needs a RUN_DIR (or --list-cameras)")
     if not gl:
         raise VnlError(_no_gl_line().replace("[vnl] video skipped: ", ""))
     from vnl.policy import load_run
@@ -317,8 +310,6 @@ def cmd_view(args: argparse.Namespace) -> int:
     from vnl.errors import VnlError
     from vnl.policy import load_run
 
-    if args.units < 0:
-        raise VnlError(f"--units must be >= 0, got {args.units}")
     source = Path(args.source)
     if source.is_file():
         if args.step is not None:
@@ -326,13 +317,13 @@ def cmd_view(args: argparse.Namespace) -> int:
         ds = open_recording(source)
         env = viewer.recording_env(ds)
         out = Path(args.out) if args.out else source.with_suffix(".rrd")
-        _check_out(out)
+        _output_file(str(out))
     else:
         if args.episode:
             raise VnlError("--episode picks an episode of a recording; a run directory is recorded for one episode")
         run = load_run(source, step=args.step)
         out = Path(args.out) if args.out else run.run_dir / "view.rrd"
-        _check_out(out)
+        _output_file(str(out))
         steps = args.steps or run.config.episode_length()
         print(f"[vnl] recording 1 episode of {steps} steps of {run.run_dir} (step {run.step:,}) ...")
         ds, env = record.record(run, 1, steps, args.seed), run.env
@@ -361,8 +352,7 @@ def cmd_analyze(args: argparse.Namespace) -> int:
     from vnl import analysis
 
     ds = analysis.open_recording(args.recording)
-    layers = analysis.layer_names(ds)
-    layer = args.layer or next((n for n in layers if n.startswith("policy_hidden")), layers[0])
+    layer = args.layer or analysis.default_layer(ds)
     color = args.color or ("x_velocity" if "x_velocity" in ds else "reward")
     out = args.out or str(Path(args.recording).with_name(f"pca_{layer}.png"))
     path, ratio = analysis.pca_figure(ds, layer, color, out)
@@ -382,7 +372,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         compare.check_distance(args.rsa)
     sources = [compare.parse_source(text) for text in args.networks]
     out = Path(args.out) if args.out else sources[0].run_dir / f"compare_{measure}.png"
-    _check_out(out)
+    _output_file(str(out))
     ds, source = _shared_recording(args, sources)
     obs, mask = compare.observations(ds)
     if measure == "rsa":  # RDMs grow with the square of the samples
@@ -394,14 +384,6 @@ def cmd_compare(args: argparse.Namespace) -> int:
     out.with_suffix(".json").write_text(json.dumps(result.to_json(), indent=1))
     print(f"wrote {out} and {out.with_suffix('.json')}")
     return 0
-
-
-def _check_out(path: Path) -> None:
-    """`VnlError` unless `path` can be written (its directory exists), before any work."""
-    from vnl.errors import VnlError
-
-    if not path.parent.is_dir():
-        raise VnlError(f"cannot write {path}: directory {path.parent} does not exist")
 
 
 def _shared_recording(args: argparse.Namespace, sources: list[Any]) -> tuple[Any, str]:
@@ -422,6 +404,122 @@ def _shared_recording(args: argparse.Namespace, sources: list[Any]) -> tuple[Any
     return ds, f"{args.episodes} episodes of {run.run_dir.name}@{run.step} (seed {args.seed})"
 
 
+# --- checks before anything heavy is imported ---------------------------------------------------
+class _Parser(argparse.ArgumentParser):
+    """argparse's parser, with its errors on one line (`vnl: error: ...`, exit code 2)."""
+
+    def error(self, message: str) -> NoReturn:
+        sys.stderr.write(f"vnl: error: {message} (see `{self.prog} --help`)\n")
+        sys.exit(2)
+
+
+def _integer(minimum: int, maximum: int | None = None) -> Callable[[str], int]:
+    """An argparse type: an integer >= `minimum` (and <= `maximum`)."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"must be >= {minimum}, got {value}")
+        if maximum is not None and value > maximum:
+            raise argparse.ArgumentTypeError(f"must be <= {maximum}, got {value}")
+        return value
+
+    parse.__name__ = "integer"
+    return parse
+
+
+_POSITIVE, _NON_NEGATIVE = _integer(1), _integer(0)
+
+
+def _run_dir(path: str, flag: str = "RUN_DIR", config: bool = True) -> None:
+    """A run directory: it exists, is a directory and (with `config`) holds a readable config.yaml."""
+    p = Path(path)
+    if not p.exists():
+        raise VnlError(f"run directory not found: {path}")
+    if not p.is_dir():
+        raise VnlError(f"{flag} {path} is a file, not a run directory")
+    if not config:
+        return
+    if not (p / "config.yaml").is_file():
+        raise VnlError(f"{path} is not a vnl run directory (no config.yaml); give a directory written by `vnl train`")
+    config_lib.load_yaml(str(p / "config.yaml"))  # unreadable or not YAML: one line now, not after imports
+
+
+def _input_file(path: str, what: str) -> None:
+    p = Path(path)
+    if not p.exists():
+        raise VnlError(f"{what} not found: {path}")
+    if p.is_dir():
+        raise VnlError(f"{what} {path} is a directory; give the path of a file")
+    if not os.access(p, os.R_OK):
+        raise VnlError(f"cannot read {what} {path} (permission denied)")
+
+
+def _output_file(path: str | None) -> None:
+    """`--out FILE`: its directory must exist and be writable, and it must not be a directory."""
+    if path is None:
+        return
+    p = Path(path)
+    parent = p.parent
+    if p.is_dir():
+        raise VnlError(f"--out {path} is a directory; give a file name")
+    if not parent.is_dir():
+        what = "is not a directory" if parent.exists() else "does not exist"
+        raise VnlError(f"--out {path}: {parent} {what}; create the directory first or choose another --out")
+    if not os.access(parent, os.W_OK):
+        raise VnlError(f"--out {path}: cannot write to {parent} (permission denied)")
+
+
+def _check_train_flags(args: argparse.Namespace) -> None:
+    if args.resume:
+        if args.env or args.config or args.preset or args.out:
+            raise VnlError("--resume continues a run with its own config: drop ENV, --config, --preset and --out")
+    elif args.from_step is not None:
+        raise VnlError("--from-step needs --resume RUN_DIR")
+    elif not args.env:
+        raise VnlError("vnl train needs an ENV (see `vnl list`) or --resume RUN_DIR")
+    if args.step is not None and not args.init_from:
+        raise VnlError("--step needs --init-from RUN_DIR (to continue a run: --resume RUN_DIR --from-step N)")
+    if args.keep_optimizer and not args.init_from:
+        raise VnlError("--keep-optimizer needs --init-from RUN_DIR")
+    if args.init_from and args.resume:
+        raise VnlError("--init-from starts a new run; --resume continues one: use one of them")
+    for text in args.set:
+        config_lib.parse_assignment(text)
+
+
+def check_inputs(args: argparse.Namespace) -> None:
+    """Paths and values the parser cannot check; raises `VnlError`. Imports nothing heavy."""
+    command = args.command
+    if command == "train":
+        _check_train_flags(args)
+        if args.resume:
+            _run_dir(args.resume, "--resume")
+        if args.init_from:
+            _run_dir(args.init_from, "--init-from")
+        if args.config:
+            _input_file(args.config, "config file")
+            args.config_values = config_lib.load_yaml(args.config)
+        if args.out and Path(args.out).exists() and not Path(args.out).is_dir():
+            raise VnlError(f"--out {args.out} is a file; give a directory for the run")
+    elif command == "render" and not args.run_dir and not args.list_cameras:
+        raise VnlError("vnl render needs a RUN_DIR (or --list-cameras)")
+    elif command in ("eval", "record") or (command == "render" and args.run_dir):
+        _run_dir(args.run_dir)
+    elif command == "plot":
+        for d in args.run_dirs:
+            _run_dir(d, config=False)  # runs are grouped by config.yaml when they have one
+            if not (Path(d) / "metrics.jsonl").is_file():
+                raise VnlError(f"{d} has no metrics.jsonl yet; plot runs that have been evaluated at least once")
+    elif command == "analyze":
+        _input_file(args.recording, "recording")
+    if command != "list" and command != "train":
+        _output_file(args.out)
+
+
 # --- parser -----------------------------------------------------------------------------------
 def _cache_flags(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("compilation cache (compiled programs reused by later runs of the same env and shapes)")
@@ -436,7 +534,9 @@ def _warm_start_flags(p: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--init-from", metavar="RUN_DIR", help="start from this run's policy, value network and observation normalizer"
     )
-    g.add_argument("--step", type=int, help="with --init-from: the parent's checkpoint step (default: newest)")
+    g.add_argument(
+        "--step", type=_NON_NEGATIVE, help="with --init-from: the parent's checkpoint step (default: newest)"
+    )
     g.add_argument(
         "--keep-optimizer", action="store_true", help="with --init-from: also keep its Adam state (default: fresh)"
     )
@@ -445,11 +545,13 @@ def _warm_start_flags(p: argparse.ArgumentParser) -> None:
 def _view_parser(sub: Any) -> None:
     p = sub.add_parser("view", help="one episode's body, camera, actions, rewards and neurons in Rerun's viewer")
     p.add_argument("source", metavar="RUN_DIR|RECORDING", help="a run (records one episode) or a `vnl record` file")
-    p.add_argument("--episode", type=int, default=0, help="the recording's episode (default 0)")
-    p.add_argument("--steps", type=int, help="with a run: control steps (default: episode length)")
-    p.add_argument("--step", type=int, help="with a run: checkpoint step (default: newest)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--units", type=int, default=4, help="traces of each layer's most variable units (default 4)")
+    p.add_argument("--episode", type=_NON_NEGATIVE, default=0, help="the recording's episode (default 0)")
+    p.add_argument("--steps", type=_POSITIVE, help="with a run: control steps (default: episode length)")
+    p.add_argument("--step", type=_NON_NEGATIVE, help="with a run: checkpoint step (default: newest)")
+    p.add_argument("--seed", type=_NON_NEGATIVE, default=0)
+    p.add_argument(
+        "--units", type=_NON_NEGATIVE, default=4, help="traces of each layer's most variable units (default 4)"
+    )
     p.add_argument("--no-camera", action="store_true", help="leave out the egocentric camera's images")
     p.add_argument("--out", help=".rrd path (default <run_dir>/view.rrd or the recording's name with .rrd)")
     p.add_argument("--open", choices=["desktop", "web"], help="open it in Rerun's desktop viewer or a browser")
@@ -460,17 +562,17 @@ def _compare_parser(sub: Any) -> None:
     p = sub.add_parser("compare", help="representational similarity (CKA, RSA) of networks on the same episodes")
     p.add_argument("networks", nargs="+", metavar="NETWORK", help="run directory, RUN_DIR@STEP, or a recording")
     p.add_argument("--recording", help="the episodes every network sees (default: the first recording given, else new)")
-    p.add_argument("--episodes", type=int, default=4, help="episodes of a new recording of the first network")
-    p.add_argument("--steps", type=int, help="steps per episode of a new recording (default: episode length)")
-    p.add_argument("--seed", type=int, default=0, help="seed of a new recording")
+    p.add_argument("--episodes", type=_POSITIVE, default=4, help="episodes of a new recording of the first network")
+    p.add_argument("--steps", type=_POSITIVE, help="steps per episode of a new recording (default: episode length)")
+    p.add_argument("--seed", type=_NON_NEGATIVE, default=0, help="seed of a new recording")
     p.add_argument("--rsa", metavar="DISTANCE", help="RSA with this distance (e.g. correlation) instead of linear CKA")
-    p.add_argument("--max-samples", type=int, default=2000, help="RSA: at most this many steps (evenly spaced)")
+    p.add_argument("--max-samples", type=_POSITIVE, default=2000, help="RSA: at most this many steps (evenly spaced)")
     p.add_argument("--out", help="heatmap PNG (default <first run>/compare_<measure>.png; a .json beside it)")
     _cache_flags(p)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="vnl", description="Virtual Neuroscience Lab")
+    parser = _Parser(prog="vnl", description="Virtual Neuroscience Lab")
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("list", help="list environments")
@@ -479,7 +581,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("train", help="train with Brax PPO (or continue a run with --resume)")
     p.add_argument("env", nargs="?", help="environment name (see `vnl list`)")
     p.add_argument("--resume", metavar="RUN_DIR", help="continue this run from its newest good checkpoint")
-    p.add_argument("--from-step", type=int, help="with --resume: continue from this checkpoint step")
+    p.add_argument("--from-step", type=_NON_NEGATIVE, help="with --resume: continue from this checkpoint step")
     p.add_argument("--config", help="YAML file with config values")
     p.add_argument(
         "--set",
@@ -490,9 +592,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--preset", help="cpu | gpu | tiny (default: cpu without an accelerator)")
     p.add_argument("--out", help="run directory (default runs/<env>-<timestamp>)")
-    p.add_argument("--seed", type=int)
-    p.add_argument("--steps", type=int, help="total environment steps (ppo.num_timesteps)")
-    p.add_argument("--num-envs", type=int, help="parallel environments (ppo.num_envs)")
+    p.add_argument("--seed", type=_NON_NEGATIVE)
+    p.add_argument("--steps", type=_POSITIVE, help="total environment steps (ppo.num_timesteps)")
+    p.add_argument("--num-envs", type=_POSITIVE, help="parallel environments (ppo.num_envs)")
     p.add_argument("--no-video", action="store_true", help="skip the final-policy video")
     p.add_argument("--vision", action="store_true", help="the policy also sees its egocentric camera (vision.enabled)")
     _warm_start_flags(p)
@@ -500,15 +602,15 @@ def build_parser() -> argparse.ArgumentParser:
     g = p.add_argument_group("multi-host (one process per host; process 0 writes the run directory)")
     g.add_argument("--distributed", action="store_true", help="join a multi-process run detected from SLURM/MPI")
     g.add_argument("--coordinator", metavar="HOST:PORT", help="manual launch: process 0's address")
-    g.add_argument("--num-processes", type=int, metavar="N", help="manual launch: number of processes")
-    g.add_argument("--process-id", type=int, metavar="I", help="manual launch: this process's index (0..N-1)")
+    g.add_argument("--num-processes", type=_POSITIVE, metavar="N", help="manual launch: number of processes")
+    g.add_argument("--process-id", type=_NON_NEGATIVE, metavar="I", help="manual launch: this process's index (0..N-1)")
 
     p = sub.add_parser("eval", help="evaluate a trained run")
     p.add_argument("run_dir")
-    p.add_argument("--episodes", type=int, default=16)
-    p.add_argument("--steps", type=int, help="max steps per episode (default: episode length)")
-    p.add_argument("--step", type=int, help="checkpoint step (default: newest)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--episodes", type=_POSITIVE, default=16)
+    p.add_argument("--steps", type=_POSITIVE, help="max steps per episode (default: episode length)")
+    p.add_argument("--step", type=_NON_NEGATIVE, help="checkpoint step (default: newest)")
+    p.add_argument("--seed", type=_NON_NEGATIVE, default=0)
     p.add_argument("--out", help="JSON file (default <run_dir>/eval.json)")
     _cache_flags(p)
 
@@ -516,11 +618,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("run_dir", nargs="?")
     p.add_argument("--camera", help="camera name (see --list-cameras); default: side")
     p.add_argument("--out", help=".mp4 path (default <run_dir>/render_<camera>.mp4)")
-    p.add_argument("--steps", type=int, help="control steps (default: 10 s)")
-    p.add_argument("--step", type=int, help="checkpoint step (default: newest)")
-    p.add_argument("--width", type=int, default=480)
-    p.add_argument("--height", type=int, default=360)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--steps", type=_POSITIVE, help="control steps (default: 10 s)")
+    p.add_argument("--step", type=_NON_NEGATIVE, help="checkpoint step (default: newest)")
+    p.add_argument("--width", type=_integer(16, 4096), default=480)
+    p.add_argument("--height", type=_integer(16, 4096), default=360)
+    p.add_argument("--seed", type=_NON_NEGATIVE, default=0)
     p.add_argument("--list-cameras", action="store_true", help="list the model's named cameras")
     p.add_argument("--env", help="with --list-cameras and no RUN_DIR: the environment")
     _cache_flags(p)
@@ -535,10 +637,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("record", help="neural recordings: activations, observations, actions, body pose")
     p.add_argument("run_dir")
-    p.add_argument("--episodes", type=int, default=4)
-    p.add_argument("--steps", type=int, help="control steps per episode (default: episode length)")
-    p.add_argument("--step", type=int, help="checkpoint step (default: newest)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--episodes", type=_POSITIVE, default=4)
+    p.add_argument("--steps", type=_POSITIVE, help="control steps per episode (default: episode length)")
+    p.add_argument("--step", type=_NON_NEGATIVE, help="checkpoint step (default: newest)")
+    p.add_argument("--seed", type=_NON_NEGATIVE, default=0)
     p.add_argument("--stochastic", action="store_true", help="sample actions instead of the mean action")
     p.add_argument("--out", help="NetCDF file (default <run_dir>/record.nc)")
     p.add_argument("--viewer", action="store_true", help="also write episode 0 as a Rerun recording (.rrd) beside it")
@@ -556,8 +658,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    gl = _configure_process()
-    from vnl.errors import VnlError
+    try:
+        check_inputs(args)
+    except VnlError as e:
+        print(f"vnl: error: {e}", file=sys.stderr)
+        return 2
+    gl = _configure_process(mujoco_needed=args.command not in ("plot", "analyze"))
 
     _compilation_cache(args)
     try:

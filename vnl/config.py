@@ -20,6 +20,40 @@ from vnl.errors import VnlError
 C = TypeVar("C")
 
 
+class FrozenDict(dict):
+    """A dict that cannot be changed after it is built: the mapping fields of frozen configs
+    (`TrainConfig.env_config`, registry presets), so no one can mutate a shared default."""
+
+    def _refuse(self, *args: Any, **kwargs: Any) -> None:
+        raise TypeError("config mappings are frozen; build a new config with vnl.config.override/merge")
+
+    __setitem__ = __delitem__ = clear = pop = popitem = setdefault = update = _refuse  # type: ignore[assignment]
+    __ior__ = _refuse  # type: ignore[assignment]
+
+    def __hash__(self) -> int:  # type: ignore[override]
+        return hash(tuple(sorted((k, _hashable(v)) for k, v in self.items())))
+
+    def __reduce__(self) -> Any:
+        return (FrozenDict, (dict(self),))
+
+
+def _hashable(value: Any) -> Any:
+    if isinstance(value, dict):
+        return tuple(sorted((k, _hashable(v)) for k, v in value.items()))
+    if isinstance(value, list):
+        return tuple(_hashable(v) for v in value)
+    return value
+
+
+def freeze(value: Any) -> Any:
+    """A deep copy of `value` with every dict a `FrozenDict` and every list a tuple."""
+    if isinstance(value, dict):
+        return FrozenDict({k: freeze(v) for k, v in value.items()})
+    if isinstance(value, (list, tuple)):
+        return tuple(freeze(v) for v in value)
+    return value
+
+
 def _type_name(tp: Any) -> str:
     return getattr(tp, "__name__", str(tp).replace("typing.", ""))
 
@@ -57,7 +91,7 @@ def _coerce(value: Any, tp: Any, key: str) -> Any:
     if origin is dict:
         if not isinstance(value, dict):
             raise VnlError(f"{key}: expected a mapping, got {value!r}")
-        return dict(value)
+        return freeze(value)
     if dataclasses.is_dataclass(tp):
         if isinstance(value, tp):
             return value
@@ -181,6 +215,12 @@ def load_yaml(path: str) -> dict[str, Any]:
             data = yaml.safe_load(f)
     except FileNotFoundError:
         raise VnlError(f"config file not found: {path}") from None
+    except IsADirectoryError:
+        raise VnlError(f"config file {path} is a directory; give the path of a YAML file") from None
+    except OSError as e:
+        raise VnlError(f"cannot read config file {path}: {e.strerror or e}") from None
+    except UnicodeDecodeError:
+        raise VnlError(f"config file {path} is not text (not a YAML file?)") from None
     except yaml.YAMLError as e:
         raise VnlError(f"config file {path} is not valid YAML: {e}".splitlines()[0]) from None
     if data is None:

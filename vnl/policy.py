@@ -9,11 +9,11 @@ from typing import Any
 
 import jax
 
-from vnl import config as config_lib
-from vnl.envs.base import Env
+from vnl.env import Env
 from vnl.errors import VnlError
 from vnl.io import checkpoint
-from vnl.train.config import TrainConfig
+from vnl.train.config import TrainConfig, read_config
+from vnl.train.networks import make_network
 
 Policy = Callable[[jax.Array, jax.Array], jax.Array]
 
@@ -28,31 +28,6 @@ class LoadedRun:
     policy: Policy
     step: int
     params: Any
-
-
-def read_config(run_dir: str | Path) -> TrainConfig:
-    """The TrainConfig saved in `<run_dir>/config.yaml`."""
-    run_dir = Path(run_dir)
-    if not run_dir.is_dir():
-        raise VnlError(f"run directory not found: {run_dir}")
-    path = run_dir / "config.yaml"
-    if not path.is_file():
-        raise VnlError(f"{run_dir} is not a vnl run directory (no config.yaml)")
-    return config_lib.from_dict(TrainConfig, config_lib.load_yaml(str(path)))
-
-
-def make_network(config: TrainConfig, env: Env) -> Any:
-    """Brax's `PPONetworks` (policy, value, action distribution) with the run's sizes (and CNN,
-    for an env with pixel observations)."""
-    from brax.training.acme import running_statistics
-
-    from vnl.train.ppo import network_factory
-
-    normalize = running_statistics.normalize if config.ppo.normalize_observations else (lambda x, y: x)
-    vision = isinstance(env.observation_size, dict)
-    return network_factory(config.network, vision)(
-        env.observation_size, env.action_size, preprocess_observations_fn=normalize
-    )
 
 
 def make_policy_fn(config: TrainConfig, env: Env, params: Any, deterministic: bool) -> Policy:

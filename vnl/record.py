@@ -30,8 +30,7 @@ import numpy as np
 
 from vnl.errors import VnlError
 from vnl.policy import LoadedRun
-
-ACTIVATIONS = {"swish": jax.nn.swish, "relu": jax.nn.relu, "tanh": jax.nn.tanh, "elu": jax.nn.elu}
+from vnl.train.networks import ACTIVATIONS, make_network
 
 
 def _dense_outputs(apply: Any, *args: Any) -> tuple[jax.Array, dict[str, jax.Array]]:
@@ -57,8 +56,6 @@ def network_activity(run: LoadedRun, obs: jax.Array, key: jax.Array, determinist
     Returns {"action": (..., act), "policy_hidden_<i>": (..., units), "policy_output": ...,
     "value_hidden_<i>": ..., "value_output": (...,)}. The action equals `run.policy(obs, key)`.
     """
-    from vnl.policy import make_network
-
     network = make_network(run.config, run.env)
     normalizer, policy_params, value_params = run.params
     act = ACTIVATIONS[run.config.network.activation]
@@ -82,11 +79,16 @@ def network_activity(run: LoadedRun, obs: jax.Array, key: jax.Array, determinist
 
 
 def record(run: LoadedRun, episodes: int, steps: int, seed: int = 0, deterministic: bool = True) -> Any:
-    """Rolls out `episodes` episodes of `steps` control steps and returns an xarray.Dataset."""
-    import xarray as xr
-
+    """Rolls out `episodes` episodes of `steps` control steps and returns an xarray.Dataset
+    (see the module docstring; a pixel env's images are stored as `pixels_<camera>`)."""
     if episodes < 1 or steps < 1:
         raise VnlError(f"--episodes and --steps must be >= 1, got {episodes} and {steps}")
+    raw = _rollout(run, episodes, steps, seed, deterministic)
+    return _dataset(run, raw, episodes, steps, seed, deterministic)
+
+
+def _rollout(run: LoadedRun, episodes: int, steps: int, seed: int, deterministic: bool) -> dict[str, Any]:
+    """Host arrays (steps, episodes, ...) of everything recorded at each step."""
     env = run.env
 
     @jax.jit
@@ -116,39 +118,66 @@ def record(run: LoadedRun, episodes: int, steps: int, seed: int = 0, determinist
         _, out = jax.lax.scan(body, (state, jp.ones((episodes,))), keys)
         return out
 
-    raw = jax.device_get(go(jax.random.PRNGKey(seed)))
-    et = lambda x: np.swapaxes(np.asarray(x), 0, 1)  # (T, E, ...) -> (E, T, ...)
-    m = env.mj_model
-    import mujoco
+    return jax.device_get(go(jax.random.PRNGKey(seed)))
 
-    def names(obj: Any, n: int) -> list[str]:
-        return [mujoco.mj_id2name(m, obj, i) or f"{i}" for i in range(n)]
 
-    obs_labels = [f"{name}[{i}]" for name, w in env.observation_layout() for i in range(w)]
-    if len(obs_labels) != env.observation_size:
-        obs_labels = [str(i) for i in range(env.observation_size)]
+def _et(x: Any) -> np.ndarray:
+    """(T, E, ...) -> (E, T, ...)."""
+    return np.swapaxes(np.asarray(x), 0, 1)
+
+
+def _observation_variables(env: Any, observation: Any) -> tuple[dict[str, Any], list[str]]:
+    """The flat observation (episode, time, feature) and, for a pixel env, each image
+    (episode, time, row, column, channel), with the feature labels."""
     dims_et = ("episode", "time")
-    data: dict[str, Any] = {
-        "observation": (dims_et + ("observation_feature",), et(raw["observation"])),
-        "action": (dims_et + ("actuator",), et(raw["action"])),
-        "reward": (dims_et, et(raw["reward"])),
-        "done": (dims_et, et(raw["done"])),
-        "active": (dims_et, et(raw["active"])),
-        "qpos": (dims_et + ("qpos_index",), et(raw["qpos"])),
-        "qvel": (dims_et + ("qvel_index",), et(raw["qvel"])),
-        "body_pos": (dims_et + ("body", "xyz"), et(raw["body_pos"])),
-        "body_quat": (dims_et + ("body", "wxyz"), et(raw["body_quat"])),
-    }
+    data: dict[str, Any] = {}
+    if isinstance(observation, dict):  # a pixel env: {"state": ..., "pixels/<camera>": ...}
+        for key, image in observation.items():
+            if key.startswith("pixels/"):
+                data[key.replace("/", "_")] = (dims_et + ("pixel_row", "pixel_column", "channel"), _et(image))
+        observation = observation["state"]
+    flat = _et(observation)
+    layout = [(name, w) for name, w in env.observation_layout() if not name.startswith("pixels/")]
+    labels = [f"{name}[{i}]" for name, w in layout for i in range(w)]
+    if len(labels) != flat.shape[-1]:
+        labels = [str(i) for i in range(flat.shape[-1])]
+    data["observation"] = (dims_et + ("observation_feature",), flat)
+    return data, labels
+
+
+def _dataset(run: LoadedRun, raw: dict[str, Any], episodes: int, steps: int, seed: int, deterministic: bool) -> Any:
+    import mujoco
+    import xarray as xr
+
+    env, m = run.env, run.env.mj_model
+    dims_et = ("episode", "time")
+    data, obs_labels = _observation_variables(env, raw["observation"])
+    data.update(
+        {
+            "action": (dims_et + ("actuator",), _et(raw["action"])),
+            "reward": (dims_et, _et(raw["reward"])),
+            "done": (dims_et, _et(raw["done"])),
+            "active": (dims_et, _et(raw["active"])),
+            "qpos": (dims_et + ("qpos_index",), _et(raw["qpos"])),
+            "qvel": (dims_et + ("qvel_index",), _et(raw["qvel"])),
+            "body_pos": (dims_et + ("body", "xyz"), _et(raw["body_pos"])),
+            "body_quat": (dims_et + ("body", "wxyz"), _et(raw["body_quat"])),
+        }
+    )
     for k, v in raw["metrics"].items():
-        data[k.replace("/", "_")] = (dims_et, et(v))
+        data[k.replace("/", "_")] = (dims_et, _et(v))
     layers = []
     for k in sorted(raw):
         if k.startswith(("policy_", "value_")):
-            v = et(raw[k])
+            v = _et(raw[k])
             if v.ndim == 2:  # the value output: one unit
                 v = v[..., None]
             data[k] = (dims_et + (f"{k}_unit",), v)
             layers.append({"name": k, "units": int(v.shape[-1])})
+
+    def names(obj: Any, n: int) -> list[str]:
+        return [mujoco.mj_id2name(m, obj, i) or f"{i}" for i in range(n)]
+
     ds = xr.Dataset(
         data,
         coords={

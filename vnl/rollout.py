@@ -8,10 +8,14 @@ from typing import Any
 import jax
 import jax.numpy as jp
 import numpy as np
+from mujoco import mjx
 
-from vnl.envs.base import Env
+from vnl.env import Env
 from vnl.errors import VnlError
+from vnl.io import video
 from vnl.policy import Policy
+from vnl.vision.camera import Camera
+from vnl.vision.env import VisionEnv, default_camera
 
 
 @dataclasses.dataclass
@@ -138,7 +142,6 @@ def policy_video(
 
     Raises `VnlError` for an unknown camera (before rolling out) or when OpenGL is unavailable.
     """
-    from vnl.io import video
 
     cam_id = video.resolve_camera(env.mj_model, camera)
     view = _policy_view(env, cam_id)
@@ -158,8 +161,6 @@ def policy_video(
 def _policy_view(env: Env, cam_id: int) -> Any:
     """The in-graph `Camera` for a side-by-side video when `cam_id` is the camera the policy sees
     through (a vision env's camera, else the model's egocentric camera at 64x64), else None."""
-    from vnl.vision.camera import Camera
-    from vnl.vision.env import VisionEnv, default_camera
 
     if isinstance(env, VisionEnv):
         if cam_id == env.camera.camera_id:
@@ -175,7 +176,6 @@ def _policy_view(env: Env, cam_id: int) -> Any:
 
 def camera_frames(env: Env, camera: Any, qpos: np.ndarray, mocap_pos: np.ndarray) -> np.ndarray:
     """In-graph camera RGB images of the states (T, nq) / (T, nmocap, 3): uint8 (T, H, W, 3)."""
-    from mujoco import mjx
 
     model = env.mjx_model
 

@@ -151,8 +151,10 @@ class RandomizedVmapWrapper(brax_training.Wrapper):
         randomization_fn: Callable[[mjx.Model], tuple[mjx.Model, mjx.Model]],
         axis_name: str | None = None,
     ) -> None:
+        if env is not env.unwrapped:
+            raise VnlError("RandomizedVmapWrapper wraps a vnl Env itself (it steps copies with other models)")
         super().__init__(env)
-        self.model, self.in_axes = randomization_fn(env.unwrapped.mjx_model)
+        self.model, self.in_axes = randomization_fn(env.mjx_model)
         sizes: set[int] = set()
         jax.tree.map(
             lambda a, x: sizes.add(int(x.shape[0])) if a is not None else None,
@@ -166,7 +168,7 @@ class RandomizedVmapWrapper(brax_training.Wrapper):
         self.axis_name = axis_name
         # Physics outside JAX (impl c) receives the env's values of these fields with every call.
         batched = [n for names in FIELDS.values() for n in names if getattr(self.in_axes, n) is not None]
-        env.unwrapped.set_per_env_fields(tuple(batched))
+        env.set_per_env_fields(tuple(batched))
 
     def _local_model(self, batch: int) -> mjx.Model:
         if self.axis_name is None:
@@ -180,21 +182,12 @@ class RandomizedVmapWrapper(brax_training.Wrapper):
 
         return jax.tree.map(take, self.in_axes, self.model, is_leaf=lambda x: x is None)
 
-    def _with_model(self, model: mjx.Model, fn: Callable[..., Any], *args: Any) -> Any:
-        inner = self.env.unwrapped
-        saved = inner._mjx_model
-        inner._mjx_model = model
-        try:
-            return fn(*args)
-        finally:
-            inner._mjx_model = saved
-
     def reset(self, rng: jax.Array) -> Any:
         model = self._local_model(rng.shape[0])
-        return jax.vmap(lambda m, k: self._with_model(m, self.env.reset, k), in_axes=(self.in_axes, 0))(model, rng)
+        return jax.vmap(lambda m, k: self.env.with_model(m).reset(k), in_axes=(self.in_axes, 0))(model, rng)
 
     def step(self, state: Any, action: jax.Array) -> Any:
         model = self._local_model(action.shape[0])
-        return jax.vmap(lambda m, s, a: self._with_model(m, self.env.step, s, a), in_axes=(self.in_axes, 0, 0))(
+        return jax.vmap(lambda m, s, a: self.env.with_model(m).step(s, a), in_axes=(self.in_axes, 0, 0))(
             model, state, action
         )

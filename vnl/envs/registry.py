@@ -7,9 +7,10 @@ from collections.abc import Callable
 from typing import Any
 
 from vnl import config as config_lib
-from vnl.envs.base import Env
+from vnl.env import Env
 from vnl.errors import VnlError
 from vnl.tasks import escape_bowl, find_target, run, run_gaps
+from vnl.vision.env import VisionConfig, VisionEnv
 
 
 @dataclasses.dataclass(frozen=True)
@@ -19,6 +20,10 @@ class Entry:
     description: str
     # Per-preset training overrides merged over `vnl.train.config.PRESETS[preset]`.
     presets: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        # Several entries are built from one presets dict: each holds its own frozen copy.
+        object.__setattr__(self, "presets", config_lib.freeze(self.presets))
 
 
 # The rat steps ~10x slower than the ant (43 joints, 10 physics steps of 2 ms per control step).
@@ -38,7 +43,7 @@ _RODENT_PRESETS = {
         },
         "log": {"video_seconds": 4.0},
     },
-    "gpu": {"ppo": {"num_envs": 2048}},  # the notebooks' rodent setting (DESIGN.md §5)
+    "gpu": {"ppo": {"num_envs": 2048}},  # the seed notebooks' rodent setting (README: CLI, presets)
 }
 
 # find_target trains from pixels on a CPU: 32x32 images, a small CNN whose spatial softmax keeps
@@ -164,7 +169,7 @@ def register(
     """
     if not hasattr(default_config, "episode_length"):
         raise VnlError(f"{name}: the default config needs an episode_length field")
-    _REGISTRY[name] = Entry(factory, default_config, description, dict(presets or {}))
+    _REGISTRY[name] = Entry(factory, default_config, description, presets or {})
 
 
 def unregister(name: str) -> None:
@@ -210,8 +215,6 @@ def make(name: str, vision: bool | dict[str, Any] | Any = False, **overrides: An
 
     Bad names, unknown keys and invalid values raise `VnlError` before anything is compiled.
     """
-    from vnl.vision.env import VisionConfig, VisionEnv
-
     e = entry(name)
     if isinstance(vision, dict):
         vision = config_lib.from_dict(VisionConfig, {"enabled": True, **vision}, prefix="vision.")

@@ -14,7 +14,9 @@ import jax
 import jax.numpy as jp
 from brax.envs.wrappers import training as brax_training
 
-from vnl.envs.base import State
+from vnl.env import State
+from vnl.envs.randomize import RandomizedVmapWrapper
+from vnl.vision.env import VisionEnv
 
 EPISODE_KEYS = ("steps", "truncation")
 """`state.info` entries of Brax's EpisodeWrapper (the episode's own bookkeeping)."""
@@ -85,16 +87,12 @@ def wrap_for_training(
     pmap axis when that batch spans all devices. A `vnl.vision.VisionEnv` is stepped blind and
     batched, then every env's image is rendered at once (`Camera.render_batch`).
     """
-    from vnl.vision.env import VisionEnv
-
     vision = env if isinstance(env, VisionEnv) else None
     if vision is not None:  # step the blind env batched, then render every env's image at once
         env = vision.blind
     if randomization_fn is None:
         env = brax_training.VmapWrapper(env)
     else:
-        from vnl.envs.randomize import RandomizedVmapWrapper
-
         env = RandomizedVmapWrapper(env, randomization_fn, axis_name=axis_name)
     if vision is not None:
         env = PixelsWrapper(env, vision)

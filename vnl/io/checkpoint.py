@@ -10,13 +10,23 @@ Each checkpoint directory holds:
 - `meta.json`: the step, the epoch length, the wall time so far and the metrics record of that
   evaluation.
 
-A checkpoint is written into a hidden temporary directory and renamed to its step name when
-complete, so a crash mid-write never leaves a half-written checkpoint under a step name. Loading
-skips (with a warning) a checkpoint that cannot be read and falls back to the next older one.
+A checkpoint is written into a hidden temporary directory (`.tmp-<step>-<pid>`) and renamed to
+its step name when complete, so a crash mid-write never leaves a half-written checkpoint under a
+step name. Replacing a checkpoint of the same step (a resumed run redoing it) first renames the old
+one to `.replaced-<step>`, renames the new one into place, then deletes the old one: at every
+moment one complete checkpoint of that step exists (`steps` and `step_dir` read a `.replaced-`
+one whose successor never arrived). Old checkpoints are renamed to `.deleting-<step>` before
+they are deleted. `tidy` (called by `save` and on resume) finishes or undoes what a killed
+process left.
+
+Loading skips (with a warning) a checkpoint that is corrupt and falls back to the next older one;
+an I/O error (a transient NFS failure, a permission problem) is not corruption: it stops with a
+`VnlError` and nothing is set aside.
 """
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import re
@@ -30,6 +40,7 @@ import numpy as np
 from vnl.errors import VnlError
 
 _STEP_DIR = re.compile(r"^\d{12}$")
+_REPLACED = re.compile(r"^\.replaced-(\d{12})$")
 PARAMS = "params"
 TRAIN_STATE = "train_state.npz"
 META = "meta.json"
@@ -40,7 +51,37 @@ def checkpoint_dir(run_dir: str | Path) -> Path:
 
 
 def step_dir(run_dir: str | Path, step: int) -> Path:
-    return checkpoint_dir(run_dir) / f"{step:012d}"
+    """The directory of checkpoint `step`: its step name, or the `.replaced-` copy a process
+    killed while replacing it left as the only complete one."""
+    final = checkpoint_dir(run_dir) / f"{step:012d}"
+    replaced = checkpoint_dir(run_dir) / f".replaced-{step:012d}"
+    return replaced if not final.is_dir() and replaced.is_dir() else final
+
+
+def tidy(run_dir: str | Path) -> None:
+    """Finishes what a killed `save` left: removes partial `.tmp-*` writes and half-deleted
+    `.deleting-*` directories, and puts a `.replaced-<step>` checkpoint back under its step
+    name when its replacement never arrived (else deletes it). Only one process writes a run."""
+    root = checkpoint_dir(run_dir)
+    if not root.is_dir():
+        return
+    for p in root.iterdir():
+        if p.name.startswith((".tmp-", ".deleting-")):
+            shutil.rmtree(p, ignore_errors=True)
+        elif m := _REPLACED.match(p.name):
+            final = root / m.group(1)
+            if final.is_dir():
+                shutil.rmtree(p, ignore_errors=True)
+            else:
+                os.rename(p, final)
+
+
+def _remove(path: Path) -> None:
+    """Deletes a checkpoint directory: renamed first, so a kill mid-delete leaves no partial
+    checkpoint under a step name."""
+    doomed = path.with_name(f".deleting-{path.name.removeprefix('.replaced-')}-{os.getpid()}")
+    os.rename(path, doomed)
+    shutil.rmtree(doomed, ignore_errors=True)
 
 
 def save(
@@ -63,9 +104,9 @@ def save(
 
     root = checkpoint_dir(run_dir)
     root.mkdir(parents=True, exist_ok=True)
-    final = step_dir(run_dir, step)
+    tidy(run_dir)
+    final = root / f"{step:012d}"
     tmp = root / f".tmp-{step:012d}-{os.getpid()}"
-    shutil.rmtree(tmp, ignore_errors=True)
     try:
         tmp.mkdir()
         # numpy leaves: orbax refuses host-local jax.Arrays in a multi-process run.
@@ -84,12 +125,15 @@ def save(
     except BaseException:  # disk full, Ctrl-C mid-write, ...: leave no partial checkpoint behind
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+    replaced = root / f".replaced-{step:012d}"
     if final.exists():  # an older write of the same step (e.g. a resumed run redoing it)
-        shutil.rmtree(final)
+        os.rename(final, replaced)
     os.rename(tmp, final)
+    if replaced.exists():
+        _remove(replaced)
     if keep > 0:
         for old in steps(run_dir)[:-keep]:
-            shutil.rmtree(step_dir(run_dir, old), ignore_errors=True)
+            _remove(step_dir(run_dir, old))
     return final
 
 
@@ -124,7 +168,11 @@ def steps(run_dir: str | Path) -> list[int]:
     root = checkpoint_dir(run_dir)
     if not root.is_dir():
         return []
-    return sorted(int(p.name) for p in root.iterdir() if p.is_dir() and _STEP_DIR.match(p.name))
+    found = set()
+    for p in root.iterdir():
+        if p.is_dir() and (_STEP_DIR.match(p.name) or _REPLACED.match(p.name)):
+            found.add(int(p.name.removeprefix(".replaced-")))
+    return sorted(found)
 
 
 def _candidates(run_dir: str | Path, step: int | None) -> list[int]:
@@ -138,13 +186,27 @@ def _candidates(run_dir: str | Path, step: int | None) -> list[int]:
     return [step]
 
 
+def is_io_error(e: BaseException) -> bool:
+    """True for an error of the storage rather than of the checkpoint's content: an OSError with
+    an errno other than a missing file's (EIO, ESTALE, EACCES, ...). Those may pass; a checkpoint
+    is not declared corrupt for them. (Readers report bad content as ValueError, EOFError,
+    zipfile.BadZipFile, a missing file, or an OSError without an errno.)"""
+    missing = (errno.ENOENT, errno.ENOTDIR, errno.EISDIR)
+    return isinstance(e, OSError) and e.errno is not None and e.errno not in missing
+
+
 def _first_readable(run_dir: str | Path, step: int | None, read: Any, what: str) -> tuple[int, Any]:
     errors = []
     for s in _candidates(run_dir, step):
         path = step_dir(run_dir, s)
         try:
             return s, read(path)
-        except Exception as e:  # noqa: BLE001 - any unreadable checkpoint falls back to an older one
+        except Exception as e:  # noqa: BLE001 - a corrupt checkpoint falls back to an older one
+            if is_io_error(e):
+                raise VnlError(
+                    f"could not read checkpoint {path} ({type(e).__name__}: {e.strerror or e}); this is a storage "
+                    "error, not a corrupt checkpoint, so nothing was changed: check the file system and try again"
+                ) from None
             errors.append(f"step {s}: {type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}")
             if step is None:
                 warnings.warn(f"checkpoint {path} is unreadable ({errors[-1]}); trying an older one", stacklevel=3)

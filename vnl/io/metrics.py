@@ -8,6 +8,8 @@ import os
 from pathlib import Path
 from typing import Any
 
+from vnl.errors import VnlError
+
 
 class JsonlWriter:
     """Appends one JSON line per call; each line is on disk before `write` returns."""
@@ -51,15 +53,34 @@ def rewrite(path: str | Path, records: list[dict[str, Any]]) -> None:
 
 
 def read(path: str | Path) -> list[dict[str, Any]]:
-    """All records of a metrics.jsonl; a torn last line (crash mid-write) is ignored."""
+    """All records of a metrics.jsonl, with null values (written for NaN/inf: a diverged run)
+    read back as NaN.
+
+    Only a torn last line (a crash mid-write: no final newline) is dropped. Any other line that
+    is not a JSON object raises `VnlError` naming the file and line, so that nothing that reads
+    and rewrites the file (a resume) can silently lose records.
+    """
+    try:
+        with open(path, encoding="utf-8") as f:
+            lines = f.read().split("\n")
+    except UnicodeDecodeError:
+        raise VnlError(f"{path} is not a metrics.jsonl file (not text)") from None
+    except OSError as e:
+        raise VnlError(f"cannot read {path}: {e.strerror or e}") from None
     records = []
-    with open(path) as f:
-        for line in f:
-            line = line.strip()
-            if not line:
-                continue
-            try:
-                records.append(json.loads(line))
-            except json.JSONDecodeError:
-                continue
+    last = len(lines) - 1  # the text after the final newline: "" unless the last write was torn
+    for number, line in enumerate(lines):
+        if not line.strip():
+            continue
+        try:
+            record = json.loads(line)
+        except json.JSONDecodeError:
+            record = None
+        if isinstance(record, dict) and isinstance(record.get("step"), int):
+            records.append({k: math.nan if v is None else v for k, v in record.items()})
+        elif number != last:
+            raise VnlError(
+                f"{path}, line {number + 1}, is not a metrics record ({line[:60]!r}); the file was edited or damaged: "
+                "repair or remove that line (vnl keeps a torn last line out by itself)"
+            )
     return records

@@ -8,13 +8,11 @@ from typing import Any
 
 def learning_curve(records: list[dict[str, Any]], out: str | Path, title: str = "") -> Path:
     """Eval reward (± std) and mean forward velocity against env steps, saved as a PNG."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure  # no pyplot: no process-wide backend or figure registry
 
     steps = [r["step"] for r in records]
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
+    fig = Figure(figsize=(10, 3.8))
+    axes = fig.subplots(1, 2)
     reward = [r.get("eval/episode_reward") for r in records]
     std = [r.get("eval/episode_reward_std") or 0.0 for r in records]
     ax = axes[0]
@@ -40,7 +38,6 @@ def learning_curve(records: list[dict[str, Any]], out: str | Path, title: str = 
         fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(out, dpi=100)
-    plt.close(fig)
     return Path(out)
 
 
@@ -130,15 +127,13 @@ def compare_runs(run_dirs: list[str | Path], metric: str, out: str | Path, linea
     each ancestor's curve (dashed) up to the step its child started from, then the run's own, on
     one step axis; runs are not grouped by seed then.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure  # no pyplot: no process-wide backend or figure registry
 
     runs = [(d, _read_records(d)) for d in map(Path, run_dirs)]
     available = set().union(*(r.keys() for _, recs in runs for r in recs))
     key = resolve_metric(metric, available)
-    fig, ax = plt.subplots(figsize=(7, 4.2))
+    fig = Figure(figsize=(7, 4.2))
+    ax = fig.subplots()
     if lineage:
         for i, (d, recs) in enumerate(runs):
             _draw_lineage(ax, d, recs, key, f"C{i}")
@@ -150,7 +145,6 @@ def compare_runs(run_dirs: list[str | Path], metric: str, out: str | Path, linea
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(out, dpi=100)
-    plt.close(fig)
     return Path(out)
 
 

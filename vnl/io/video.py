@@ -9,11 +9,7 @@ import mujoco
 import numpy as np
 
 from vnl.errors import VnlError
-
-
-def camera_names(model: mujoco.MjModel) -> list[str]:
-    """Named cameras of `model` (usable with `--camera`)."""
-    return [model.camera(i).name for i in range(model.ncam) if model.camera(i).name]
+from vnl.vision.camera import camera_names
 
 
 def resolve_camera(model: mujoco.MjModel, camera: str | None) -> int:

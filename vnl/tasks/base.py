@@ -19,7 +19,7 @@ from dm_control import mjcf
 from mujoco import mjx
 
 from vnl import physics
-from vnl.envs.base import Env
+from vnl.env import Env
 from vnl.errors import VnlError
 from vnl.walkers import mjx_compat
 from vnl.walkers.base import Walker
@@ -184,6 +184,10 @@ def body_id(model: mujoco.MjModel, name: str) -> int:
     raise VnlError(f"no body named {name!r} in the model; bodies are: {', '.join(names)}")
 
 
+SPAWN_TOP = 3.0  # m: spawn heights are searched below this
+SPAWN_BOTTOM = -1.0
+
+
 def spawn_height(model: mujoco.MjModel, x: float = 0.0, y: float = 0.0, mocap_pos: np.ndarray | None = None) -> float:
     """Lowest root height (m, ±1 mm) at which the walker in its default pose at (x, y) touches
     nothing.
@@ -192,6 +196,9 @@ def spawn_height(model: mujoco.MjModel, x: float = 0.0, y: float = 0.0, mocap_po
     the same once on the host, for the default pose, with MuJoCo C: lower the walker from 3 m in
     1 cm steps until it touches something, then raise it in 1 mm steps until it does not.
     `mocap_pos` (nmocap, 3) places mocap bodies (e.g. platforms) first.
+
+    Raises `VnlError` naming the geoms in contact when the pose touches itself (contacts that no
+    height removes: self-collision of a pose whose parts overlap), and when there is no ground.
     """
     data = mujoco.MjData(model)
     if mocap_pos is not None:
@@ -204,14 +211,30 @@ def spawn_height(model: mujoco.MjModel, x: float = 0.0, y: float = 0.0, mocap_po
         mujoco.mj_forward(model, data)
         return data.ncon > 0
 
-    z = 3.0
+    if touches(SPAWN_TOP):
+        raise VnlError(
+            f"the walker's default pose touches itself or something at {SPAWN_TOP} m above ({x}, {y}) "
+            f"({_contacts(model, data)}); turn env_config.self_collision off or fix the model's default pose"
+        )
+    z = SPAWN_TOP
     while not touches(z):
         z -= 0.01
-        if z < -1.0:
+        if z < SPAWN_BOTTOM:
             raise VnlError(f"no ground under the walker's spawn point ({x}, {y})")
-    while touches(z):
+    while touches(z):  # ends: nothing touches at SPAWN_TOP
         z += 0.001
     return float(z)
+
+
+def _contacts(model: mujoco.MjModel, data: mujoco.MjData, shown: int = 4) -> str:
+    """'geom a – geom b, ...': the geom pairs in contact in `data`."""
+
+    def name(g: int) -> str:
+        return mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, g) or f"geom {g}"
+
+    pairs = sorted({f"{name(c.geom1)} – {name(c.geom2)}" for c in (data.contact[i] for i in range(data.ncon))})
+    more = f" and {len(pairs) - shown} more" if len(pairs) > shown else ""
+    return "contacts: " + ", ".join(pairs[:shown]) + more
 
 
 def _root_free_qposadr(model: mujoco.MjModel) -> int:

@@ -30,7 +30,7 @@ from mujoco import mjx
 
 from vnl import rewards
 from vnl.arenas import bowl as bowl_arena
-from vnl.envs.base import State
+from vnl.env import State
 from vnl.errors import VnlError
 from vnl.tasks.base import WalkerTask, WalkerTaskConfig, body_id, build_walker, compile_world, spawn_height
 

@@ -22,7 +22,7 @@ import mujoco
 from mujoco import mjx
 
 from vnl import physics
-from vnl.envs.base import Env, State
+from vnl.env import Env, State
 from vnl.errors import VnlError
 from vnl.tasks.base import check_warp_available
 

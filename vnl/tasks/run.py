@@ -26,7 +26,7 @@ from mujoco import mjx
 
 from vnl import physics
 from vnl.arenas import floor
-from vnl.envs.base import State
+from vnl.env import State
 from vnl.errors import VnlError
 from vnl.physics import mjx_physics
 from vnl.tasks.base import WalkerTask, WalkerTaskConfig, build_walker, compile_world, spawn_height
@@ -48,7 +48,7 @@ class RunConfig(WalkerTaskConfig):
     healthy_min_upright: float = 0.0  # cos(max tilt); -1 disables the check
     terminate_when_unhealthy: bool = True
     floor_size: float = 50.0  # rendered half-extent of the floor
-    # Physics: MJX (default) or one of Brax's pipelines (ant and humanoid; see vnl.envs.brax_physics).
+    # Physics: MJX (default) or one of Brax's pipelines (ant and humanoid; see vnl.physics.brax_pipelines).
     backend: Literal["mjx", "generalized", "positional", "spring"] = "mjx"
     # Actuator gears (one per actuator) replacing the model's, e.g. Brax's humanoid env's gears for
     # its positional/spring pipelines (README, physics backends); None keeps the model's.
@@ -104,7 +104,7 @@ HUMANOID_RUN = RunConfig(
     healthy_min_upright=-1.0,
     reset_noise_scale=0.01,
 )
-"""`humanoid_run` defaults: the seed notebooks' MJX humanoid (DESIGN.md §5)."""
+"""`humanoid_run` defaults: the seed notebooks' MJX humanoid (README: Tasks and rewards)."""
 
 BRAX_HUMANOID_RUN = dataclasses.replace(HUMANOID_RUN, walker="brax_humanoid")
 """`brax_humanoid_run`: Brax's humanoid with the same task; runs on MJX or a Brax pipeline (`backend`)."""
@@ -178,7 +178,7 @@ class Run(WalkerTask):
         self._spawn_z = None if walker.standalone else spawn_height(model)
         self._brax = None
         if config.backend != "mjx":
-            from vnl.envs.brax_physics import BraxPhysics
+            from vnl.physics.brax_pipelines import BraxPhysics
 
             self._brax = BraxPhysics(model, config.backend)
 

@@ -30,7 +30,7 @@ from mujoco import mjx
 
 from vnl import rewards
 from vnl.arenas import gaps
-from vnl.envs.base import State
+from vnl.env import State
 from vnl.errors import VnlError
 from vnl.tasks.base import WalkerTask, WalkerTaskConfig, build_walker, compile_world, spawn_height
 

@@ -7,6 +7,7 @@ Everything is validated before the environment is compiled.
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 from typing import Any, Literal
 
 from vnl import config as config_lib
@@ -206,6 +207,10 @@ class TrainConfig:
     init: InitConfig = InitConfig()  # warm start from another run (vnl.train.warm_start)
     curriculum: tuple[StageConfig, ...] = ()  # stages of env_config overrides (vnl.train.curriculum)
 
+    def __post_init__(self) -> None:
+        # A frozen config must not hold a dict someone else can change (or that it shares).
+        object.__setattr__(self, "env_config", config_lib.freeze(self.env_config))
+
     def validate(self) -> None:
         if self.preset not in PRESETS:
             raise VnlError(f"unknown preset {self.preset!r}; valid presets are: {', '.join(PRESETS)}")
@@ -253,45 +258,47 @@ class TrainConfig:
         return self.ppo.episode_length or self.resolved_env_config().episode_length
 
 
-PRESETS: dict[str, dict[str, Any]] = {
-    # Fits a 2-core CPU: the ant learns to run in about 10 minutes (see README).
-    "cpu": {},
-    # The seed notebooks' GPU hyperparameters (DESIGN.md §5).
-    "gpu": {
-        "ppo": {
-            "num_timesteps": 30_000_000,
-            "num_envs": 4096,
-            "batch_size": 1024,
-            "num_minibatches": 32,
-            "num_updates_per_batch": 8,
-            "unroll_length": 10,
-            "discounting": 0.97,
-            "learning_rate": 3e-4,
-            "entropy_cost": 1e-3,
-            "reward_scaling": 0.1,
-            "normalize_observations": True,
-            "num_evals": 20,
-            "num_eval_envs": 128,
+PRESETS: dict[str, dict[str, Any]] = config_lib.freeze(
+    {
+        # Fits a 2-core CPU: the ant learns to run in about 10 minutes (see README).
+        "cpu": {},
+        # The seed notebooks' GPU hyperparameters (README: GPU).
+        "gpu": {
+            "ppo": {
+                "num_timesteps": 30_000_000,
+                "num_envs": 4096,
+                "batch_size": 1024,
+                "num_minibatches": 32,
+                "num_updates_per_batch": 8,
+                "unroll_length": 10,
+                "discounting": 0.97,
+                "learning_rate": 3e-4,
+                "entropy_cost": 1e-3,
+                "reward_scaling": 0.1,
+                "normalize_observations": True,
+                "num_evals": 20,
+                "num_eval_envs": 128,
+            },
+            "network": {"policy_hidden_layer_sizes": [32, 32, 32, 32]},
         },
-        "network": {"policy_hidden_layer_sizes": [32, 32, 32, 32]},
-    },
-    # For tests and smoke runs: compiles and finishes in about a minute.
-    "tiny": {
-        "ppo": {
-            "num_timesteps": 4096,
-            "num_envs": 16,
-            "batch_size": 16,
-            "num_minibatches": 4,
-            "num_updates_per_batch": 1,
-            "unroll_length": 8,
-            "num_evals": 2,
-            "num_eval_envs": 4,
-            "episode_length": 32,
+        # For tests and smoke runs: compiles and finishes in about a minute.
+        "tiny": {
+            "ppo": {
+                "num_timesteps": 4096,
+                "num_envs": 16,
+                "batch_size": 16,
+                "num_minibatches": 4,
+                "num_updates_per_batch": 1,
+                "unroll_length": 8,
+                "num_evals": 2,
+                "num_eval_envs": 4,
+                "episode_length": 32,
+            },
+            "network": {"policy_hidden_layer_sizes": [16, 16], "value_hidden_layer_sizes": [16, 16]},
+            "log": {"video_seconds": 0.5, "video_width": 64, "video_height": 48},
         },
-        "network": {"policy_hidden_layer_sizes": [16, 16], "value_hidden_layer_sizes": [16, 16]},
-        "log": {"video_seconds": 0.5, "video_width": 64, "video_height": 48},
-    },
-}
+    }
+)
 
 
 def default_preset() -> str:
@@ -354,3 +361,53 @@ def resolved(config: TrainConfig) -> TrainConfig:
     """The config with `env_config` expanded to the env's full config (what config.yaml holds)."""
     full = config_lib.to_dict(config.resolved_env_config())
     return dataclasses.replace(config, env_config=full)
+
+
+def read_config(run_dir: str | Path) -> TrainConfig:
+    """The TrainConfig saved in `<run_dir>/config.yaml`."""
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise VnlError(f"run directory not found: {run_dir}")
+    path = run_dir / "config.yaml"
+    if not path.is_file():
+        raise VnlError(f"{run_dir} is not a vnl run directory (no config.yaml)")
+    return config_lib.from_dict(TrainConfig, config_lib.load_yaml(str(path)))
+
+
+SAFE_TO_CHANGE_ON_RESUME = ("ppo.num_timesteps", "log.", "env_config.threads")
+"""What a resumed run may change: its length, logging, and C physics' thread count (MuJoCo's
+batched stepping is bit-identical at any thread count)."""
+
+
+def resume_config(saved: TrainConfig, assignments: list[str] | None, flags: dict[str, Any] | None) -> TrainConfig:
+    """`saved` with `--set`/flag changes applied; only total steps, `log.*` and
+    `env_config.threads` may change.
+
+    Anything else (env, network, PPO hyperparameters, seed) would make the continued run a
+    different experiment, so it is refused with the list of offending keys.
+    """
+    values = config_lib.to_dict(saved)
+    for text in assignments or []:
+        values = config_lib.merge(values, config_lib.parse_assignment(text))
+    values = config_lib.merge(values, flags or {})
+    new = config_lib.from_dict(TrainConfig, values)
+    before, after = _flatten(config_lib.to_dict(saved)), _flatten(config_lib.to_dict(new))
+    changed = sorted(k for k in set(before) | set(after) if before.get(k) != after.get(k))
+    unsafe = [k for k in changed if not k.startswith(SAFE_TO_CHANGE_ON_RESUME)]
+    if unsafe:
+        detail = ", ".join(f"{k}: {before.get(k)!r} -> {after.get(k)!r}" for k in unsafe)
+        raise VnlError(
+            f"cannot resume with a changed {detail}; a resumed run may only change ppo.num_timesteps "
+            "(--steps), log.* settings and env_config.threads. Start a new run for a different configuration."
+        )
+    return new
+
+
+def _flatten(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        if isinstance(v, dict) and v:
+            out.update(_flatten(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out

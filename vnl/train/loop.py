@@ -43,8 +43,11 @@ from brax.training.agents.ppo import losses as ppo_losses
 from brax.training.agents.ppo import networks as ppo_networks
 from brax.training.agents.ppo.train import TrainingState
 
+from vnl.envs import randomize
+from vnl.envs.wrappers import wrap_for_training
 from vnl.errors import VnlError
 from vnl.train.config import TrainConfig
+from vnl.train.networks import make_network
 
 AXIS = "i"  # the pmap axis over local devices
 
@@ -99,6 +102,21 @@ def epoch_length(config: TrainConfig) -> int:
     return math.ceil(p.num_timesteps / (max(p.num_evals - 1, 1) * p.env_steps_per_training_step))
 
 
+def run_evaluation(
+    evaluator: acting.Evaluator, key: jax.Array, params: Any, training_metrics: dict[str, float]
+) -> tuple[dict[str, Any], jax.Array]:
+    """Brax's `Evaluator.run_evaluation` from PRNG key `key`; returns (metrics, the key after it).
+
+    Brax's Evaluator keeps its key in the private `_key` (set by `__init__`, split by every
+    `run_evaluation`) and has no public way to set or read it; building an Evaluator per
+    evaluation would retrace its unroll. This is vnl's only use of it, and
+    tests/test_faults.py::test_brax_evaluator_key_is_where_vnl_sets_it fails if Brax changes it.
+    """
+    evaluator._key = key
+    metrics = evaluator.run_evaluation(params, training_metrics)
+    return metrics, evaluator._key
+
+
 class PPOLoop:
     """Brax PPO on `env` with `config`'s hyperparameters, one epoch at a time.
 
@@ -110,9 +128,6 @@ class PPOLoop:
     """
 
     def __init__(self, env: Any, config: TrainConfig, training_steps_per_epoch: int | None = None) -> None:
-        from vnl.envs.wrappers import wrap_for_training
-        from vnl.policy import make_network
-
         p = config.ppo
         self.config = config
         self.devices = jax.local_devices()
@@ -177,8 +192,6 @@ class PPOLoop:
         worlds back. Every process holds the parameters of all `num_envs` envs; each device takes
         its slice by its global index (`RandomizedVmapWrapper`).
         """
-        from vnl.envs import randomize
-
         self.randomization: dict[str, dict[str, float]] = {}
         cfg = self.config.randomize
         if not cfg.enabled:
@@ -349,9 +362,8 @@ class PPOLoop:
 
     def evaluate(self, state: LoopState, training_metrics: dict[str, float]) -> tuple[LoopState, dict[str, Any]]:
         """Brax's evaluation (`num_eval_envs` episodes) of the current policy."""
-        self._evaluator._key = state.eval_key  # the Evaluator keeps its key privately
-        metrics = self._evaluator.run_evaluation(self.params(state), training_metrics)
-        return state.replace(eval_key=self._evaluator._key), metrics
+        metrics, eval_key = run_evaluation(self._evaluator, state.eval_key, self.params(state), training_metrics)
+        return state.replace(eval_key=eval_key), metrics
 
     def _training_epoch(self, training: TrainingState, env_state: Any, key: jax.Array) -> tuple[Any, Any, Any]:
         (training, env_state, _), metrics = jax.lax.scan(

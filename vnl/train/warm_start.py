@@ -26,7 +26,7 @@ import yaml
 from vnl import config as config_lib
 from vnl.errors import VnlError
 from vnl.io import checkpoint
-from vnl.train.config import TrainConfig
+from vnl.train.config import TrainConfig, read_config
 
 PARAMS = ".training.params."
 NORMALIZER = ".training.normalizer_params."
@@ -79,8 +79,6 @@ def parent_defaults(run_dir: str | Path) -> dict[str, Any]:
     """The config values a child inherits unless it sets them: the parent's network and whether
     it normalizes observations (`vnl.train.config.build` takes them as file values below the
     user's own)."""
-    from vnl.policy import read_config
-
     parent = read_config(run_dir)
     return {
         "network": config_lib.to_dict(parent.network),
@@ -91,8 +89,6 @@ def parent_defaults(run_dir: str | Path) -> dict[str, Any]:
 def load_parent(config: TrainConfig) -> Parent:
     """Reads the checkpoint `config.init` names; `VnlError` when the run or step is missing or
     unreadable, or when the parent's networks differ from `config`'s."""
-    from vnl.policy import read_config
-
     init = config.init
     if init.run is None:
         raise VnlError("no parent run: set init.run (--init-from RUN_DIR)")

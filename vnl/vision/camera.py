@@ -47,6 +47,11 @@ FAR = 1e4  # depth reported where a ray hits nothing (metres)
 CHUNK_PIXELS = 2**16  # pixels rendered at a time by render_batch
 
 
+def camera_names(model: mujoco.MjModel) -> list[str]:
+    """Named cameras of `model` (usable with `--camera`)."""
+    return [model.camera(i).name for i in range(model.ncam) if model.camera(i).name]
+
+
 @dataclasses.dataclass(frozen=True)
 class _Geoms:
     """The visible geoms of one type, as constant arrays."""

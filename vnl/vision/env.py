@@ -26,8 +26,9 @@ import jax
 import jax.numpy as jp
 import mujoco
 
-from vnl.envs.base import Env, State
+from vnl.env import Env, State
 from vnl.errors import VnlError
+from vnl.vision.camera import Camera, camera_names
 
 CHANNELS = {"rgb": 3, "depth": 1, "rgbd": 4}
 
@@ -60,8 +61,6 @@ class VisionConfig:
 
 def default_camera(model: mujoco.MjModel) -> str:
     """The model's egocentric camera; a `VnlError` listing the cameras when there is none."""
-    from vnl.io.video import camera_names
-
     names = camera_names(model)
     for name in names:
         if name == "egocentric" or name.endswith("/egocentric"):
@@ -83,8 +82,6 @@ class VisionEnv(Env):
     """
 
     def __init__(self, env: Env, config: VisionConfig) -> None:
-        from vnl.vision.camera import Camera
-
         config.validate()
         if isinstance(env.observation_shape, dict):
             raise VnlError(f"{type(env).__name__} already has a dict observation; vision wraps flat observations")

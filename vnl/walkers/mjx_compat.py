@@ -164,6 +164,47 @@ def _proxy(gtype: int, size: np.ndarray) -> tuple[int, list[float], np.ndarray]:
     return _T.mjGEOM_CAPSULE, [radius, float(axes[long]) - radius], rot
 
 
+def _add_proxy(model: mujoco.MjModel, el: mjcf.Element, g: int, partners: set[str]) -> Replacement:
+    """Adds the proxy of geom `g` (element `el`) beside it, with its contact parameters, and turns
+    the original into a visual-only geom."""
+    gtype = int(model.geom_type[g])
+    ptype, psize, rot = _proxy(gtype, model.geom_size[g])
+    quat = np.zeros(4)
+    mujoco.mju_mulQuat(quat, model.geom_quat[g], rot)
+    el.parent.add(
+        "geom",
+        name=f"{el.name}_proxy" if el.name else None,
+        type=_type_name(ptype),
+        size=psize,
+        pos=model.geom_pos[g].tolist(),
+        quat=quat.tolist(),
+        contype=int(model.geom_contype[g]),
+        conaffinity=int(model.geom_conaffinity[g]),
+        condim=int(model.geom_condim[g]),
+        priority=int(model.geom_priority[g]),
+        friction=model.geom_friction[g].tolist(),
+        solmix=float(model.geom_solmix[g]),
+        solref=model.geom_solref[g].tolist(),
+        solimp=model.geom_solimp[g].tolist(),
+        margin=float(model.geom_margin[g]),
+        gap=float(model.geom_gap[g]),
+        rgba=model.geom_rgba[g].tolist(),
+        group=PROXY_GROUP,
+        mass=0,
+    )
+    el.contype = 0
+    el.conaffinity = 0
+    return Replacement(
+        geom=model.geom(g).name,
+        body=model.body(int(model.geom_bodyid[g])).name,
+        original_type=_type_name(gtype),
+        original_size=tuple(float(s) for s in model.geom_size[g]),
+        proxy_type=_type_name(ptype),
+        proxy_size=tuple(psize),
+        partners=tuple(sorted(partners)),
+    )
+
+
 def make_compatible(root: mjcf.RootElement) -> Report:
     """Gives MJX-collidable proxies to the geoms of `root` (a whole world) that need them, in place.
 
@@ -198,47 +239,9 @@ def make_compatible(root: mjcf.RootElement) -> Report:
     replacements = []
     touched: dict[int, mjcf.Element] = {}
     for g, partners in sorted(targets.items()):
-        el = elements[g]
-        gtype = int(model.geom_type[g])
-        ptype, psize, rot = _proxy(gtype, model.geom_size[g])
-        quat = np.zeros(4)
-        mujoco.mju_mulQuat(quat, model.geom_quat[g], rot)
-        el.parent.add(
-            "geom",
-            name=f"{el.name}_proxy" if el.name else None,
-            type=_type_name(ptype),
-            size=psize,
-            pos=model.geom_pos[g].tolist(),
-            quat=quat.tolist(),
-            contype=int(model.geom_contype[g]),
-            conaffinity=int(model.geom_conaffinity[g]),
-            condim=int(model.geom_condim[g]),
-            priority=int(model.geom_priority[g]),
-            friction=model.geom_friction[g].tolist(),
-            solmix=float(model.geom_solmix[g]),
-            solref=model.geom_solref[g].tolist(),
-            solimp=model.geom_solimp[g].tolist(),
-            margin=float(model.geom_margin[g]),
-            gap=float(model.geom_gap[g]),
-            rgba=model.geom_rgba[g].tolist(),
-            group=PROXY_GROUP,
-            mass=0,
-        )
-        el.contype = 0
-        el.conaffinity = 0
+        replacements.append(_add_proxy(model, elements[g], g, partners))
         body_id = int(model.geom_bodyid[g])
         touched[body_id] = bodies[body_id]
-        replacements.append(
-            Replacement(
-                geom=model.geom(g).name,
-                body=model.body(body_id).name,
-                original_type=_type_name(gtype),
-                original_size=tuple(float(s) for s in model.geom_size[g]),
-                proxy_type=_type_name(ptype),
-                proxy_size=tuple(psize),
-                partners=tuple(sorted(partners)),
-            )
-        )
     # Freeze the inertia of every touched body at its compiled value (geom masses then no longer
     # count), so the proxies change collisions only.
     for body_id, body in touched.items():

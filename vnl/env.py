@@ -8,6 +8,7 @@ side effects, so both can be jitted, vmapped and scanned.
 from __future__ import annotations
 
 import abc
+import copy
 import functools
 from typing import Any
 
@@ -161,6 +162,14 @@ class Env(abc.ABC):
         observations, rewards or gradients.
         """
         return self._physics.step(self._mjx_model, data, ctrl, self._n_substeps)
+
+    def with_model(self, mjx_model: mjx.Model) -> Env:
+        """This env stepping with `mjx_model` (the same model with other values: one env's draw of
+        domain randomization) instead of its own. A shallow copy: this env is unchanged, so a
+        vmapped `lambda m, s, a: env.with_model(m).step(s, a)` gives every env its own model."""
+        env = copy.copy(self)
+        env._mjx_model = mjx_model
+        return env
 
     def set_per_env_fields(self, names: tuple[str, ...]) -> None:
         """Declares the mjx.Model fields that differ between envs (domain randomization), so that

@@ -1,0 +1,266 @@
+"""Cheap tests of the fixes for bad input and interruptions: no hang, no traceback, nothing lost.
+
+Each test here runs in well under a second or two (no env is compiled)."""
+
+import errno
+import json
+import math
+import os
+import signal
+
+import mujoco
+import numpy as np
+import pytest
+
+from vnl import analysis
+from vnl import config as config_lib
+from vnl.envs import registry
+from vnl.errors import VnlError
+from vnl.io import checkpoint
+from vnl.io import metrics as metrics_io
+from vnl.tasks.base import spawn_height
+from vnl.train import config as train_config
+from vnl.train.progress import progress_line
+from vnl.train.signals import StopRequest
+
+# --- spawn height -------------------------------------------------------------------------------
+
+WALKER = """<mujoco><worldbody><geom name="floor" type="plane" size="5 5 .1"/>
+<body name="torso" pos="0 0 1"><freejoint/><geom name="torso" type="sphere" size=".1"/>
+ <body name="a" pos=".3 0 0"><joint type="hinge"/>
+  <geom name="arm" type="capsule" fromto="0 0 0 .2 0 0" size=".05"/></body>
+ <body name="b" pos="HAND 0 0"><joint type="hinge"/><geom name="hand" type="sphere" size=".06"/></body>
+</body></worldbody></mujoco>"""
+
+
+def test_spawn_height_of_a_self_touching_pose_is_an_error_naming_the_geoms():
+    """It used to raise the walker in 1 mm steps forever."""
+    model = mujoco.MjModel.from_xml_string(WALKER.replace("HAND", ".35"))  # the hand overlaps the arm
+    with pytest.raises(VnlError, match="touches itself.*hand – arm.*self_collision"):
+        spawn_height(model)
+    apart = mujoco.MjModel.from_xml_string(WALKER.replace("HAND", "-.6"))
+    assert spawn_height(apart) == pytest.approx(0.1, abs=2e-3)  # the sphere's radius above the floor
+
+
+# --- metrics.jsonl ------------------------------------------------------------------------------
+
+
+def test_metrics_reader_drops_only_a_torn_last_line(tmp_path):
+    p = tmp_path / "m.jsonl"
+    p.write_text(json.dumps({"step": 1}) + "\n" + '{"step": 2, "eval/epi')
+    assert metrics_io.read(p) == [{"step": 1}]
+
+
+@pytest.mark.parametrize("bad", ['{"step": 2, "eval/epi', "garbage", "[1, 2]", '{"no_step": 1}', "{}"])
+def test_metrics_reader_refuses_a_malformed_line_in_the_middle(tmp_path, bad):
+    p = tmp_path / "m.jsonl"
+    p.write_text("\n".join([json.dumps({"step": 1}), bad, json.dumps({"step": 3})]) + "\n")
+    with pytest.raises(VnlError, match="line 2"):
+        metrics_io.read(p)
+    p.write_text(json.dumps({"step": 1}) + "\n" + bad + "\n")  # complete (newline-ended), so not torn
+    with pytest.raises(VnlError, match="line 2"):
+        metrics_io.read(p)
+
+
+def test_a_diverged_run_s_null_metrics_read_back_as_nan_and_format(tmp_path):
+    p = tmp_path / "m.jsonl"
+    writer = metrics_io.JsonlWriter(p)
+    writer.write({"step": 0, "eval/episode_reward": float("nan"), "env_steps_per_sec": float("inf")})
+    writer.close()
+    assert '"eval/episode_reward": null' in p.read_text()
+    (record,) = metrics_io.read(p)
+    assert math.isnan(record["eval/episode_reward"])
+    line = progress_line({**record, "eval/mean_forward_velocity": None}, 0, 100, 1.0, 0.0)
+    assert "reward       nan" in line and "vx +nan m/s" in line
+
+
+# --- checkpoints --------------------------------------------------------------------------------
+
+PARAMS = ({"mean": np.zeros(2, np.float32)}, {"w": np.ones(3, np.float32)}, {"w": np.ones(1, np.float32)})
+
+
+def _save(run, step, marker):
+    return checkpoint.save(run, step, PARAMS, 0, {"x": np.full(2, marker)}, {"marker": marker})
+
+
+def test_replacing_a_same_step_checkpoint_never_leaves_that_step_without_one(tmp_path, monkeypatch):
+    _save(tmp_path, 5, 1)
+    real_rename = os.rename
+
+    def crash_after_moving_the_old_one_aside(src, dst):
+        real_rename(src, dst)
+        if ".replaced-" in str(dst):
+            raise KeyboardInterrupt  # a second Ctrl-C (or a kill) between the two renames
+
+    monkeypatch.setattr(checkpoint.os, "rename", crash_after_moving_the_old_one_aside)
+    with pytest.raises(KeyboardInterrupt):
+        _save(tmp_path, 5, 2)
+    monkeypatch.setattr(checkpoint.os, "rename", real_rename)
+    assert checkpoint.steps(tmp_path) == [5]  # the old checkpoint still counts and loads
+    assert checkpoint.load_train_state(tmp_path)[2]["marker"] == 1
+    _save(tmp_path, 7, 3)  # the next write tidies: the old step 5 is back under its name
+    names = sorted(p.name for p in checkpoint.checkpoint_dir(tmp_path).iterdir())
+    assert names == ["000000000005", "000000000007"]
+    _save(tmp_path, 5, 4)  # a completed replacement keeps only the new one
+    assert checkpoint.load_train_state(tmp_path, 5)[2]["marker"] == 4
+    assert sorted(p.name for p in checkpoint.checkpoint_dir(tmp_path).iterdir()) == names
+
+
+def test_leftovers_of_a_killed_write_are_removed_and_never_loaded(tmp_path):
+    _save(tmp_path, 1, 1)
+    root = checkpoint.checkpoint_dir(tmp_path)
+    (root / ".tmp-000000000002-999").mkdir()  # a write killed before its rename
+    (root / ".deleting-000000000000-999").mkdir()  # a deletion killed midway
+    assert checkpoint.steps(tmp_path) == [1]
+    _save(tmp_path, 3, 3)
+    assert sorted(p.name for p in root.iterdir()) == ["000000000001", "000000000003"]
+
+
+def test_an_io_error_is_not_corruption(tmp_path, monkeypatch):
+    """A transient read error (NFS) stops with a message; it does not fall back to an older
+    checkpoint (which `--resume` would then continue from, setting the newer ones aside)."""
+    _save(tmp_path, 1, 1)
+    _save(tmp_path, 2, 2)
+
+    def flaky(*args, **kwargs):
+        raise OSError(errno.EIO, "Input/output error")
+
+    monkeypatch.setattr(checkpoint.np, "load", flaky)
+    with pytest.raises(VnlError, match="storage error, not a corrupt checkpoint"):
+        checkpoint.load_train_state(tmp_path)
+    monkeypatch.undo()
+    (checkpoint.step_dir(tmp_path, 2) / checkpoint.TRAIN_STATE).write_bytes(b"garbage")  # corrupt: falls back
+    with pytest.warns(UserWarning, match="unreadable"):
+        assert checkpoint.load_train_state(tmp_path)[0] == 1
+
+
+# --- signals ------------------------------------------------------------------------------------
+
+
+def test_a_second_ctrl_c_waits_for_the_write_in_progress():
+    stop = StopRequest(abort_on_second=True)
+    stop.handle(signal.SIGINT, None)
+    assert stop.requested.is_set()
+    done = []
+    with pytest.raises(KeyboardInterrupt):
+        with stop.critical():
+            stop.handle(signal.SIGINT, None)  # must not raise inside the write
+            done.append("written")
+    assert done == ["written"]
+    with pytest.raises(KeyboardInterrupt):  # outside a write it aborts at once
+        stop.handle(signal.SIGINT, None)
+
+
+def test_a_multi_process_run_never_aborts_one_process_alone():
+    stop = StopRequest(abort_on_second=False)
+    stop.handle(signal.SIGINT, None)
+    stop.handle(signal.SIGINT, None)  # no KeyboardInterrupt: all processes stop together
+    stop.handle(signal.SIGTERM, None)
+    assert stop.requested.is_set()
+
+
+# --- shared mutable defaults --------------------------------------------------------------------
+
+
+def test_registry_presets_and_config_mappings_are_frozen_copies():
+    rodent_envs = ["rodent_run", "rodent_run_gaps", "rodent_escape_bowl", "run", "run_gaps", "escape_bowl"]
+    presets = [registry.entry(n).presets for n in rodent_envs]
+    assert all(p == presets[0] for p in presets)
+    assert len({id(p) for p in presets}) == len(presets)  # no two entries share one dict
+    with pytest.raises(TypeError):
+        presets[0]["cpu"]["ppo"]["num_envs"] = 8
+    with pytest.raises(TypeError):
+        train_config.PRESETS["tiny"]["ppo"]["num_envs"] = 8
+    cfg = train_config.build("ant_run", "tiny", {"env_config": {"reset_noise_scale": 0.05}})
+    with pytest.raises(TypeError):
+        cfg.env_config["reset_noise_scale"] = 1.0
+    mine = {"reset_noise_scale": 0.05}
+    cfg = train_config.TrainConfig(env="ant_run", env_config=mine)
+    mine["reset_noise_scale"] = 9.0  # the caller's dict is not the config's
+    assert cfg.env_config["reset_noise_scale"] == 0.05
+    assert config_lib.to_dict(cfg)["env_config"] == {"reset_noise_scale": 0.05}
+    assert type(config_lib.to_dict(cfg)["env_config"]) is dict  # YAML-safe
+
+
+# --- recordings ---------------------------------------------------------------------------------
+
+
+def _recording(tmp_path, layers):
+    import xarray as xr
+
+    data = {"active": (("episode", "time"), np.ones((1, 20))), "reward": (("episode", "time"), np.zeros((1, 20)))}
+    for name, units in layers.items():
+        data[name] = (("episode", "time", f"{name}_unit"), np.random.default_rng(0).normal(size=(1, 20, units)))
+    path = tmp_path / "r.nc"
+    xr.Dataset(data, coords={"time": np.arange(20) * 0.1}).to_netcdf(path, engine="h5netcdf")
+    return path
+
+
+def test_analyze_refuses_a_one_unit_layer_and_a_file_without_layers(tmp_path):
+    ds = analysis.open_recording(_recording(tmp_path, {"policy_hidden_0": 4, "value_output": 1}))
+    with pytest.raises(VnlError, match="1 unit; a PCA needs at least 2: use one of policy_hidden_0"):
+        analysis.pca_figure(ds, "value_output", "reward", tmp_path / "pca.png")
+    assert analysis.default_layer(ds) == "policy_hidden_0"
+    with pytest.raises(VnlError, match="no network layers"):
+        analysis.open_recording(_recording(tmp_path, {}))
+
+
+# --- other libraries' private APIs, each used in one place ----------------------------------------
+
+
+def test_brax_evaluator_key_is_where_vnl_sets_it():
+    """vnl.train.loop.run_evaluation sets and reads Brax's private `Evaluator._key`: this fails
+    loudly if Brax renames it or stops splitting it in `run_evaluation`."""
+    import jax
+    import tiny_env
+    from brax.training import acting
+
+    from vnl.envs.wrappers import wrap_for_training
+    from vnl.train.loop import run_evaluation
+
+    env = wrap_for_training(tiny_env.PointMass(tiny_env.PointConfig(impl="c")), episode_length=5)  # C: compiles fast
+
+    def make_policy(params):
+        def policy(obs, key):  # random actions: the metrics depend on the evaluation's key
+            return jax.random.uniform(key, obs.shape[:-1] + (1,), minval=-1, maxval=1), {}
+
+        return policy
+
+    evaluator = acting.Evaluator(
+        env, make_policy, num_eval_envs=4, episode_length=5, action_repeat=1, key=jax.random.PRNGKey(7)
+    )
+    assert np.array_equal(evaluator._key, jax.random.PRNGKey(7))
+    key = jax.random.PRNGKey(3)
+    first, after = run_evaluation(evaluator, key, (), {})
+    assert np.array_equal(after, jax.random.split(key)[0])  # run_evaluation splits `_key` once
+    again, _ = run_evaluation(evaluator, key, (), {})
+    other, _ = run_evaluation(evaluator, jax.random.PRNGKey(4), (), {})
+    reward = "eval/episode_reward"
+    assert first[reward] == again[reward] != other[reward]  # the key we set is the one it used
+
+
+def test_with_model_steps_a_copy_and_leaves_the_env_alone():
+    import tiny_env
+
+    env = tiny_env.PointMass(tiny_env.PointConfig())
+    heavier = env.mjx_model.replace(body_mass=env.mjx_model.body_mass * 2)
+    copy = env.with_model(heavier)
+    assert copy.mjx_model is heavier and env.mjx_model is not heavier
+    assert type(copy) is type(env) and copy.config is env.config
+
+
+def test_a_pixel_env_s_observation_is_recorded_as_state_and_images():
+    """`vnl record` on a --vision run: the dict observation becomes the labelled state and one
+    (episode, time, row, column, channel) array per camera (it assumed a flat observation)."""
+    from vnl.record import _observation_variables
+
+    class Env:
+        def observation_layout(self):
+            return [("joints", 2), ("gyro", 1), ("pixels/egocentric (uint8 4x4x3)", 48)]
+
+    obs = {"state": np.zeros((5, 2, 3)), "pixels/egocentric": np.zeros((5, 2, 4, 4, 3), np.uint8)}
+    data, labels = _observation_variables(Env(), obs)
+    assert labels == ["joints[0]", "joints[1]", "gyro[0]"]
+    assert data["observation"][1].shape == (2, 5, 3)  # (episode, time, feature)
+    dims, image = data["pixels_egocentric"]
+    assert dims == ("episode", "time", "pixel_row", "pixel_column", "channel") and image.shape == (2, 5, 4, 4, 3)

@@ -1,0 +1,110 @@
+"""vnl's modules import each other in the order README's "Layers" section writes down, and in no
+circle. The layers are read from README itself, so the text and the code cannot drift apart."""
+
+import ast
+import re
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGE = ROOT / "vnl"
+
+
+def written_layers() -> list[set[str]]:
+    """The README's layer table, top (index 0) to bottom: each layer's units (`vnl.train`,
+    `vnl.env`, ...)."""
+    text = (ROOT / "README.md").read_text()
+    block = re.search(r"<!-- layers -->\n```\n(.*?)```", text, re.S)
+    assert block, "README.md has no layers block (<!-- layers --> followed by a code block)"
+    layers = []
+    for line in block.group(1).strip().splitlines():
+        paths = re.findall(r"vnl/[\w/]*?(?:\.py|/)", line)
+        units = {"vnl." + p.removeprefix("vnl/").removesuffix(".py").removesuffix("/").replace("/", ".") for p in paths}
+        assert units, line
+        layers.append(units)
+    return layers
+
+
+def module_name(path: Path) -> str:
+    parts = path.relative_to(ROOT).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def imports(path: Path) -> set[str]:
+    """The vnl modules `path` imports anywhere (module level or inside functions)."""
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            found |= {a.name for a in node.names if a.name.startswith("vnl")}
+        elif isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("vnl"):
+            for a in node.names:  # `from vnl.io import checkpoint` imports the module vnl.io.checkpoint
+                sub = f"{node.module}.{a.name}"
+                is_module = (ROOT / (sub.replace(".", "/") + ".py")).is_file() or (
+                    ROOT / sub.replace(".", "/")
+                ).is_dir()
+                found.add(sub if is_module else node.module)
+    return found
+
+
+def graph() -> dict[str, set[str]]:
+    return {module_name(p): imports(p) - {module_name(p)} for p in sorted(PACKAGE.rglob("*.py"))}
+
+
+def unit_of(module: str, units: set[str]) -> str:
+    """The layer unit holding `module`: the longest unit that is it or a package above it."""
+    owners = [u for u in units if module == u or module.startswith(u + ".")]
+    assert owners, f"{module} is in no layer of README's layers block"
+    return max(owners, key=len)
+
+
+def test_every_import_points_down_or_within_its_layer():
+    layers = written_layers()
+    units = set().union(*layers)
+    level = {u: i for i, layer in enumerate(layers) for u in layer}  # 0 = top
+    wrong = []
+    for module, targets in graph().items():
+        if module == "vnl":  # the package facade: its lazy table loads the public API on first use
+            continue
+        mine = level[unit_of(module, units)]
+        for target in targets:
+            theirs = level[unit_of(target, units)] if target != "vnl" else len(layers)
+            if theirs < mine:
+                wrong.append(f"{module} (layer {mine}) imports {target} (layer {theirs}, above it)")
+    assert not wrong, "\n".join(sorted(wrong))
+
+
+def _cycles(edges: dict[str, set[str]]) -> list[list[str]]:
+    cycles, state = [], {}
+
+    def visit(node: str, stack: list[str]) -> None:
+        state[node] = "open"
+        for nxt in sorted(edges.get(node, ())):
+            if state.get(nxt) == "open":
+                cycles.append(stack[stack.index(nxt) :] + [nxt])
+            elif nxt not in state:
+                visit(nxt, [*stack, nxt])
+        state[node] = "done"
+
+    for node in sorted(edges):
+        if node not in state:
+            visit(node, [node])
+    return cycles
+
+
+def test_no_import_cycles_between_modules_or_packages():
+    g = {m: {t for t in ts if t != "vnl"} for m, ts in graph().items() if m != "vnl"}
+    assert not _cycles(g), _cycles(g)
+    units = set().union(*written_layers())
+    packages: dict[str, set[str]] = {}
+    for module, targets in g.items():
+        mine = unit_of(module, units)
+        packages.setdefault(mine, set()).update(unit_of(t, units) for t in targets if unit_of(t, units) != mine)
+    assert not _cycles(packages), _cycles(packages)
+
+
+def test_the_checks_catch_an_upward_import_and_a_cycle():
+    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == [["a", "b", "c", "a"]]
+    assert _cycles({"a": {"b"}, "b": set()}) == []
+    layers = written_layers()
+    assert unit_of("vnl.train.loop", set().union(*layers)) == "vnl.train"
+    top = {u: i for i, layer in enumerate(layers) for u in layer}
+    assert top["vnl.cli"] < top["vnl.train"] < top["vnl.envs"] < top["vnl.tasks"] < top["vnl.walkers"]

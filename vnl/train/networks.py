@@ -1,0 +1,85 @@
+"""Brax's PPO networks with the run's sizes: the network factory and `make_network`.
+
+`network_factory(config.network, vision)` is Brax's `network_factory` hook (MLPs, or a CNN per
+`pixels/` observation then MLPs); `make_network(config, env)` builds the networks for an env.
+Training (`vnl.train.loop`) and loading a trained policy (`vnl.policy`) both use it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jp
+from brax.training import networks
+from brax.training.acme import running_statistics
+from brax.training.agents.ppo import networks as ppo_networks
+from brax.training.agents.ppo import networks_vision
+
+from vnl.env import Env
+from vnl.train.config import NetworkConfig, TrainConfig
+from vnl.train.conv import cpu_convolutions
+
+ACTIVATIONS = {"swish": jax.nn.swish, "relu": jax.nn.relu, "tanh": jax.nn.tanh, "elu": jax.nn.elu}
+
+
+def network_factory(net: NetworkConfig, vision: bool = False) -> Callable[..., Any]:
+    """Brax's `make_ppo_networks` with the configured sizes and activation; with `vision`, Brax's
+    `make_ppo_networks_vision` (a CNN per `pixels/` key, then the MLP on the CNN features and
+    the normalized `state`), taking uint8 images (scaled to [0, 1] inside the networks)."""
+    activation = ACTIVATIONS[net.activation]
+    if vision:
+        return functools.partial(
+            _vision_networks,
+            policy_hidden_layer_sizes=tuple(net.policy_hidden_layer_sizes),
+            value_hidden_layer_sizes=tuple(net.value_hidden_layer_sizes),
+            activation=activation,
+            policy_obs_key="state",
+            value_obs_key="state",
+            cnn_output_channels=tuple(net.cnn_channels),
+            cnn_kernel_size=tuple(net.cnn_kernel_sizes),
+            cnn_stride=tuple(net.cnn_strides),
+            cnn_max_pool=net.cnn_max_pool,
+            cnn_global_pool=net.cnn_pool,
+        )
+    return functools.partial(
+        ppo_networks.make_ppo_networks,
+        policy_hidden_layer_sizes=tuple(net.policy_hidden_layer_sizes),
+        value_hidden_layer_sizes=tuple(net.value_hidden_layer_sizes),
+        activation=activation,
+    )
+
+
+def make_network(config: TrainConfig, env: Env) -> Any:
+    """Brax's `PPONetworks` (policy, value, action distribution) with the run's sizes (and CNN,
+    for an env with pixel observations)."""
+    normalize = running_statistics.normalize if config.ppo.normalize_observations else (lambda x, y: x)
+    vision = isinstance(env.observation_size, dict)
+    return network_factory(config.network, vision)(
+        env.observation_size, env.action_size, preprocess_observations_fn=normalize
+    )
+
+
+def _vision_networks(*args: Any, **kwargs: Any) -> Any:
+    """Brax's vision PPO networks, applied to observations whose `pixels/` arrays are uint8."""
+    nets = networks_vision.make_ppo_networks_vision(*args, **kwargs)
+    # XLA:CPU runs convolution gradients 10-20x slower inside PPO's loops (vnl.train.conv).
+    convolutions = cpu_convolutions if jax.default_backend() == "cpu" else contextlib.nullcontext
+
+    def scaled(net: Any) -> Any:
+        def apply(processor_params: Any, params: Any, obs: dict[str, Any]) -> Any:
+            obs = {k: _unit_pixels(v) if k.startswith("pixels/") else v for k, v in obs.items()}
+            with convolutions():
+                return net.apply(processor_params, params, obs)
+
+        return networks.FeedForwardNetwork(init=net.init, apply=apply)
+
+    return nets.replace(policy_network=scaled(nets.policy_network), value_network=scaled(nets.value_network))
+
+
+def _unit_pixels(x: Any) -> Any:
+    """uint8 [0, 255] -> float32 [0, 1] (float images pass through)."""
+    return x.astype(jp.float32) / 255.0 if x.dtype == jp.uint8 else x

@@ -1,0 +1,67 @@
+"""What a run reports after each evaluation: its metrics record and its progress line."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+
+def make_record(
+    step: int, wall_time: float, brax_metrics: dict[str, Any], episode_seconds: float | None = None
+) -> dict[str, Any]:
+    """One metrics.jsonl record: Brax's eval/training metrics plus derived quantities.
+
+    `eval/episode_<metric>` are per-episode sums (Brax's convention), e.g.
+    `eval/episode_reward/forward` and the task measures `eval/episode_measure/<name>`;
+    `eval/mean_forward_velocity` is the episode's summed x velocity over its length, in m/s;
+    `eval/upright_fraction` is the time upright over the full episode (`episode_seconds`). Values
+    that are not finite (a diverged run) stay NaN/inf here and are written as null.
+    """
+    record: dict[str, Any] = {"step": int(step), "wall_time": round(wall_time, 3)}
+    for k, v in brax_metrics.items():
+        try:
+            record[k] = float(v)
+        except (TypeError, ValueError):
+            continue
+    record["env_steps_per_sec"] = record.get("training/sps", 0.0)
+    length = record.get("eval/avg_episode_length")
+    if length and "eval/episode_x_velocity" in record:
+        record["eval/mean_forward_velocity"] = record["eval/episode_x_velocity"] / length
+    if episode_seconds and "eval/episode_measure/upright_time" in record:
+        record["eval/upright_fraction"] = record["eval/episode_measure/upright_time"] / episode_seconds
+    return record
+
+
+def fmt_time(seconds: float) -> str:
+    """m:ss; '--:--' when unknown (NaN or infinite)."""
+    if not math.isfinite(seconds):
+        return "--:--"
+    seconds = int(max(seconds, 0))
+    return f"{seconds // 60}:{seconds % 60:02d}"
+
+
+def number(value: Any, spec: str) -> str:
+    """`value` formatted with `spec`, or 'nan' when it is missing or null (a diverged run)."""
+    return format(float("nan") if value is None else float(value), spec)
+
+
+def progress_line(
+    record: dict[str, Any], first_step: int, total_steps: int, elapsed: float, elapsed_before: float
+) -> str:
+    """`[vnl] step 348,160/1,000,000 (35%) | reward 523.1 | vx +0.21 m/s | 2,850 steps/s | ...`.
+
+    `first_step` is where this session started (the ETA extrapolates from it), `elapsed` this
+    session's seconds and `elapsed_before` the seconds of the sessions it resumes.
+    """
+    step = record["step"]
+    done = (step - first_step) / max(total_steps - first_step, 1)
+    eta = fmt_time(elapsed / done * (1 - done)) if 0 < done < 1 else ("--:--" if done <= 0 else "0:00")
+    vx = record.get("eval/mean_forward_velocity")
+    return (
+        f"[vnl] step {step:>11,}/{total_steps:,} ({100 * min(step / total_steps, 1):3.0f}%) | "
+        + (f"stage {int(record['curriculum/stage']) + 1} | " if "curriculum/stage" in record else "")
+        + f"reward {number(record.get('eval/episode_reward'), '9.2f')} | "
+        + (f"vx {number(vx, '+.2f')} m/s | " if "eval/mean_forward_velocity" in record else "")
+        + f"{number(record.get('env_steps_per_sec'), '7,.0f')} steps/s | "
+        f"elapsed {fmt_time(elapsed_before + elapsed)} | ETA {eta}"
+    )

@@ -1,0 +1,108 @@
+"""The run directory of a training run: created and checked before anything compiles, and put
+back in order when a run resumes from a checkpoint."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+
+from vnl import config as config_lib
+from vnl.env import Env
+from vnl.errors import VnlError
+from vnl.io import checkpoint
+from vnl.io import metrics as metrics_io
+from vnl.train import networks
+from vnl.train.config import TrainConfig, resolved
+
+Say = Callable[[str], None]
+
+
+def prepare_run_dir(run_dir: Path, config: TrainConfig) -> None:
+    """Creates `run_dir` and writes config.yaml; fails before any compile if it cannot.
+
+    A directory that already holds a run (metrics or checkpoints) is refused, so nothing already
+    written is overwritten.
+    """
+    run_dir = Path(run_dir)
+    if (run_dir / "metrics.jsonl").exists() or checkpoint.steps(run_dir):
+        raise VnlError(f"{run_dir} already holds a run; choose another --out directory (or --resume it)")
+    if run_dir.exists() and not run_dir.is_dir():
+        raise VnlError(f"--out {run_dir} is a file; give a directory for the run")
+    try:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        probe = run_dir / ".write-test"
+        probe.write_bytes(b"x" * 65536)  # also catches a full disk
+        probe.unlink()
+        config_lib.dump_yaml(resolved(config), str(run_dir / "config.yaml"))
+    except OSError as e:
+        raise VnlError(f"cannot write to run directory {run_dir}: {e.strerror or e}") from None
+
+
+def checkpoint_bytes(config: TrainConfig, env: Env) -> int:
+    """Estimated size of one checkpoint, from shapes only (nothing is compiled).
+
+    The training state holds every env's state twice (current and first, for auto-reset); the
+    parameters are stored three times (params and Adam's two moments) plus once more in params/.
+    """
+    state = jax.eval_shape(env.reset, jax.ShapeDtypeStruct((2,), np.uint32))
+    per_env = sum(int(np.prod(x.shape)) * x.dtype.itemsize for x in jax.tree.leaves(state))
+    network = networks.make_network(config, env)
+    key = jax.ShapeDtypeStruct((2,), np.uint32)
+    params = jax.eval_shape(lambda k: (network.policy_network.init(k), network.value_network.init(k)), key)
+    n_params = sum(int(np.prod(x.shape)) * x.dtype.itemsize for x in jax.tree.leaves(params))
+    return 2 * config.ppo.num_envs * per_env + 4 * n_params
+
+
+def check_disk_space(run_dir: Path, config: TrainConfig, env: Env) -> None:
+    """Fails before compiling when the disk cannot hold the checkpoints the run will keep."""
+    keep = config.log.keep_checkpoints or config.ppo.num_evals
+    need = (min(keep, config.ppo.num_evals) + 1) * checkpoint_bytes(config, env) + (64 << 20)
+    free = shutil.disk_usage(run_dir).free
+    if free < need:
+        raise VnlError(
+            f"not enough free disk space in {run_dir}: {free / 2**20:,.0f} MiB free, this run needs about "
+            f"{need / 2**20:,.0f} MiB for its checkpoints; free some space, use another --out, or keep fewer "
+            f"checkpoints (--set log.keep_checkpoints=1)"
+        )
+
+
+def truncate_metrics(run_dir: Path, step: int, record: dict[str, Any] | None, say: Say) -> float:
+    """Keeps the metrics.jsonl records up to `step` (taking that step's record from the checkpoint
+    if the file lacks it), so the resumed run continues it without duplicates or gaps. A file with
+    later records is first copied to a timestamped backup. Returns the wall time at `step`.
+
+    A malformed line other than a torn last one is a `VnlError` (`metrics_io.read`): the file is
+    then left as it is.
+    """
+    path = run_dir / "metrics.jsonl"
+    records = metrics_io.read(path) if path.exists() else []
+    kept = [r for r in records if r.get("step", 0) < step]
+    at_step = next((r for r in records if r.get("step") == step), record)
+    if at_step is not None:
+        kept.append(at_step)
+    if any(r.get("step", 0) > step for r in records):
+        backup = run_dir / f"metrics.jsonl.{time.strftime('%Y%m%d-%H%M%S')}.bak"
+        shutil.copyfile(path, backup)
+        say(f"[vnl] metrics after step {step:,} will be recomputed; the previous file is kept as {backup.name}")
+    metrics_io.rewrite(path, kept)
+    wall = at_step.get("wall_time") if at_step else None
+    return float(wall) if wall is not None else 0.0
+
+
+def set_aside_later_checkpoints(run_dir: Path, step: int, say: Say) -> None:
+    """Moves the checkpoints after `step` to `checkpoints/superseded-<time>/` (nothing is deleted)."""
+    later = [s for s in checkpoint.steps(run_dir) if s > step]
+    if not later:
+        return
+    aside = checkpoint.checkpoint_dir(run_dir) / f"superseded-{time.strftime('%Y%m%d-%H%M%S')}"
+    aside.mkdir()
+    for s in later:
+        os.rename(checkpoint.step_dir(run_dir, s), aside / f"{s:012d}")
+    say(f"[vnl] checkpoints after step {step:,} moved to {aside}")

@@ -1,0 +1,263 @@
+"""One training run in progress: the PPO loop, its run directory, trackers and stop request.
+
+`Session(config, run_dir, restored, say).run(finish)` is what `vnl.train.ppo.train`/`resume` do
+once the run directory is ready. Each epoch: train (`PPOLoop.epoch`), evaluate, write the
+checkpoint (every `log.checkpoint_every` evaluations, and when stopping), append the metrics
+record, print the progress line.
+
+With several processes only process 0 evaluates and writes, and each of those steps goes through
+`distributed.on_lead`, so an error there (a full disk, a failing tracker) stops every process
+instead of leaving the others blocked in the next collective.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import jax
+
+from vnl import config as config_lib
+from vnl.errors import VnlError
+from vnl.io import checkpoint, tracking
+from vnl.train import curriculum, distributed, rundir, warm_start
+from vnl.train.config import TrainConfig
+from vnl.train.loop import LoopState
+from vnl.train.progress import make_record, progress_line
+from vnl.train.signals import StopRequest
+
+Say = Callable[[str], None]
+Finish = Callable[[Path], Path | None]
+Progress = Callable[[dict[str, Any]], None]
+
+
+@dataclasses.dataclass
+class Restored:
+    """A checkpoint a run continues from: its step, training-state arrays and meta.json."""
+
+    step: int
+    arrays: dict[str, Any]
+    meta: dict[str, Any]
+
+
+@dataclasses.dataclass
+class TrainResult:
+    """What a finished (or interrupted) run left behind."""
+
+    run_dir: Path
+    steps: int
+    interrupted: bool
+    final_metrics: dict[str, Any]
+    records: list[dict[str, Any]]
+    wall_time: float
+    params: Any = None  # final (normalizer, policy, value) params; None if interrupted
+
+
+def _silent(_: str) -> None:
+    pass
+
+
+class Session:
+    """A run being trained into `run_dir` (created by `rundir.prepare_run_dir`, or resumed from
+    `restored`, or warm-started from `parent`, a `warm_start` parent run). `say` prints progress
+    and `progress(record)` receives each metrics record (process 0 only)."""
+
+    def __init__(
+        self,
+        config: TrainConfig,
+        run_dir: Path,
+        restored: Restored | None,
+        say: Say,
+        parent: Any = None,
+        progress: Progress | None = None,
+    ) -> None:
+        self.config, self.run_dir, self.restored = config, run_dir, restored
+        self.parent, self.progress = parent, progress
+        self.lead = distributed.is_lead()
+        self.say = say if self.lead else _silent
+        self.env = config.make_env()
+        distributed.on_lead(lambda: rundir.check_disk_space(run_dir, config, self.env))
+        epoch = restored.meta["training_steps_per_epoch"] if restored else None
+        self.loop = curriculum.make_loop(self.env, config, epoch, self.say)
+        self.episode_seconds = self.loop.episode_length * self.env.dt
+        self.stop = StopRequest(abort_on_second=distributed.process_count() == 1)
+        self.records: list[dict[str, Any]] = []
+        self.first_step = restored.step if restored else 0
+        self.wall_offset = 0.0  # wall time of the sessions this one continues
+        self.evaluations = 0  # evaluations since the start (or the restored checkpoint)
+        self.tracker: tracking.Tracker | None = None
+        self.t_start = time.time()
+
+    # ---- the run ---------------------------------------------------------------------------------
+
+    def run(self, finish: Finish | None = None) -> TrainResult:
+        """Trains until `ppo.num_timesteps` or a stop request; `finish(run_dir)` runs after a
+        completed run (process 0), and a path it returns (a video) is uploaded to wandb."""
+        try:
+            with self.stop.installed():
+                distributed.on_lead(self._open_run_dir)
+                interrupted, state = self._train()
+            saved = checkpoint.steps(self.run_dir) if self.lead else [self.loop.env_steps(state)]
+            result = TrainResult(
+                run_dir=self.run_dir,
+                steps=saved[-1] if saved else 0,
+                interrupted=interrupted,
+                final_metrics=self.records[-1] if self.records else {},
+                records=self.records,
+                wall_time=time.time() - self.t_start,
+                params=None if interrupted else self.loop.params(state),
+            )
+            if finish is not None and not interrupted:
+                distributed.on_lead(lambda: self._finish(finish, result.steps))
+        finally:
+            if self.tracker is not None:
+                self.tracker.close()
+        if interrupted:
+            self.say(
+                f"[vnl] stopped at step {result.steps:,}; continue with `vnl train --resume {self.run_dir}`, or "
+                f"use the checkpoint with `vnl eval {self.run_dir}` / `vnl render {self.run_dir}`."
+            )
+        return result
+
+    def _open_run_dir(self) -> None:
+        """Process 0: puts a resumed run directory back at the restored step, opens the trackers,
+        writes randomization.json, says what is about to happen."""
+        config, restored = self.config, self.restored
+        if restored:
+            with self.stop.critical():
+                checkpoint.tidy(self.run_dir)
+                rundir.set_aside_later_checkpoints(self.run_dir, restored.step, self.say)
+                self.wall_offset = rundir.truncate_metrics(
+                    self.run_dir, restored.step, restored.meta.get("record"), self.say
+                )
+        wandb_id = restored.meta.get("wandb_id") if restored else None
+        self.tracker = tracking.Tracker(
+            self.run_dir, config.log, config_lib.to_dict(config), self.say, wandb_id=wandb_id
+        )
+        loop = self.loop
+        self.say(
+            f"[vnl] {'resuming' if restored else 'training'} {config.env} (preset {config.preset}) on "
+            f"{loop.n_devices} {jax.default_backend()} device(s)"
+            + (f" on each of {loop.process_count} processes" if loop.process_count > 1 else "")
+            + f", physics {self.env.unwrapped.physics.describe()} -> {self.run_dir}"
+            + (f" from step {restored.step:,}" if restored else "")
+        )
+        for name, stats in loop.randomization.items():
+            self.say(
+                f"[vnl] randomize.{name}: factor mean {stats['mean']:.3f}, min {stats['min']:.3f}, "
+                f"max {stats['max']:.3f} over {config.ppo.num_envs} envs"
+            )
+        if loop.randomization and not restored:
+            (self.run_dir / "randomization.json").write_text(json.dumps(loop.randomization, indent=2) + "\n")
+        self.say("[vnl] compiling (on a CPU about a minute; seconds with a warm compilation cache)...")
+
+    def _train(self) -> tuple[bool, LoopState]:
+        """The epochs; returns (interrupted, final state)."""
+        total = self.config.ppo.num_timesteps
+        state = self._first_state()
+        self.say(f"[vnl] compiled and ready {time.time() - self.t_start:.0f} s after start; training")
+        step = self.loop.env_steps(state)
+        # With several processes a stop is agreed on (any process's signal stops all of them at
+        # the same epoch), since checkpointing is collective.
+        stopping = distributed.any_process(self.stop.requested.is_set())
+        while step < total and not stopping:
+            state, training_metrics = self.loop.epoch(state)
+            step = self.loop.env_steps(state)
+            state, record = self._evaluate(state, training_metrics, step)
+            stopping = distributed.any_process(self.stop.requested.is_set())
+            self._save(step, state, record, force=stopping)
+            self._log(record)
+        return step < total, state
+
+    def _first_state(self) -> LoopState:
+        """The restored state, or a fresh one evaluated and checkpointed at step 0; compiled."""
+        if self.restored:
+            state = self.loop.from_arrays(self.restored.arrays)
+            self.loop.compile(state)
+            self.evaluations = 1  # checkpoint_every counts evaluations after the restored one
+            return state
+        state = self.loop.init(self.config.seed)
+        if self.parent is not None:
+            state = warm_start.apply(self.loop, state, self.parent, self.config.init.keep_optimizer)
+            self.say(f"[vnl] networks and normalizer from {self.parent.run_dir} at step {self.parent.step:,}")
+        self.loop.compile(state)
+        state, record = self._evaluate(state, {}, 0)
+        self._save(0, state, record, force=True)
+        self._log(record)
+        return state
+
+    # ---- each evaluation -------------------------------------------------------------------------
+
+    def _evaluate(self, state: LoopState, training_metrics: dict[str, Any], step: int) -> tuple[LoopState, dict]:
+        """Process 0 evaluates the policy; every process gets (state, the metrics record)."""
+        out = distributed.on_lead(lambda: self.loop.evaluate(state, training_metrics))
+        state, metrics = out if out is not None else (state, training_metrics)
+        wall_time = self.wall_offset + time.time() - self.t_start
+        return state, make_record(step, wall_time, metrics, self.episode_seconds)
+
+    def _save(self, step: int, state: LoopState, record: dict[str, Any], force: bool) -> None:
+        """A checkpoint every `log.checkpoint_every` evaluations, at the end, and when `force`d."""
+        n = self.evaluations
+        self.evaluations += 1
+        if not (force or n % self.config.log.checkpoint_every == 0 or step >= self.config.ppo.num_timesteps):
+            return
+        arrays = self.loop.to_arrays(state)  # every process: gathers the envs of all of them
+        distributed.on_lead(lambda: self._write(step, state, record, arrays))
+
+    def _write(self, step: int, state: LoopState, record: dict[str, Any], arrays: dict[str, Any]) -> None:
+        tracker = self.tracker
+        meta = {
+            "training_steps_per_epoch": self.loop.training_steps_per_epoch,
+            "env_steps_per_epoch": self.loop.env_steps_per_epoch,
+            "training_walltime": self.loop.training_walltime,
+            "record": record,
+            "wandb_id": tracker.wandb.id if tracker and tracker.wandb else None,
+        }
+        try:
+            with self.stop.critical():
+                params = self.loop.params(state)
+                checkpoint.save(self.run_dir, step, params, self.config.log.keep_checkpoints, arrays, meta)
+        except OSError as e:
+            raise self._write_error(f"the checkpoint of step {step:,}", e) from None
+
+    def _write_error(self, what: str, e: OSError) -> VnlError:
+        """The error for a failed write (a full disk, a lost mount), naming what is intact."""
+        good = checkpoint.steps(self.run_dir)
+        return VnlError(
+            f"could not write {what} in {self.run_dir}: {e.strerror or e}. "
+            + (
+                f"The last good checkpoint (step {good[-1]:,}) and the metrics written so far are intact; free "
+                f"some space and continue with `vnl train --resume {self.run_dir}`."
+                if good
+                else "Free some space and start again."
+            )
+        )
+
+    def _log(self, record: dict[str, Any]) -> None:
+        """Process 0: the record to metrics.jsonl and the trackers, and the progress line."""
+
+        def write() -> None:
+            assert self.tracker is not None
+            try:
+                with self.stop.critical():
+                    self.tracker.write(record)
+            except OSError as e:
+                raise self._write_error(f"the metrics of step {record['step']:,}", e) from None
+            self.records.append(record)
+            if self.progress is not None:
+                self.progress(record)
+            if self.config.log.progress:
+                elapsed = time.time() - self.t_start
+                line = progress_line(record, self.first_step, self.config.ppo.num_timesteps, elapsed, self.wall_offset)
+                self.say(line)
+
+        distributed.on_lead(write)
+
+    def _finish(self, finish: Finish, step: int) -> None:
+        video = finish(self.run_dir)
+        if video is not None and self.tracker is not None:
+            self.tracker.upload_video(video, f"{self.config.env} at step {step:,}")
