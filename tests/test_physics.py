@@ -196,12 +196,16 @@ def test_a_blow_up_ends_only_that_envs_episode():
 
 @pytest.mark.xdist_group("ant_run-c")
 def test_results_do_not_depend_on_the_thread_count():
+    """Two envs of one model, 1 and 2 threads, alive at once: each call runs on its own env's
+    batch of simulations (its thread count), and the results are bit-identical."""
     s, action = mid_episode("ant_run", batch=4)
+    envs = [vnl.make("ant_run", impl="c", threads=threads) for threads in (1, 2)]
+    steps = [jax.jit(jax.vmap(e.step)).lower(s, action).compile() for e in envs]  # both registered
     outs = []
-    for threads in (1, 2):
-        e = vnl.make("ant_run", impl="c", threads=threads)
-        assert e.physics.threads == threads and e.physics.describe().startswith("MuJoCo C")
-        outs.append(jax.device_get(jax.jit(jax.vmap(e.step))(s, action)))
+    for i, (e, step) in enumerate(zip(envs, steps, strict=True)):
+        assert e.physics.threads == i + 1 and e.physics.describe().startswith("MuJoCo C")
+        outs.append(jax.device_get(step(s, action)))
+        assert [4 in other.physics._batches for other in envs] == [True, i == 1]  # this env's Batch ran
     for a, b in zip(jax.tree.leaves(outs[0]), jax.tree.leaves(outs[1]), strict=True):
         np.testing.assert_array_equal(a, b)
 
@@ -308,7 +312,7 @@ def test_second_process_loads_the_c_physics_program_from_the_cache(tmp_path):
     assert any((tmp_path / "cache").glob("jit_rollout-*"))
 
 
-# --- training with C physics: exact resume, two devices --------------------------------------------
+# --- training with C physics on two devices --------------------------------------------
 
 TINY_C = ["--preset", "tiny", "--no-video", "--no-compile-cache", "--set", "env_config.impl=c"]
 
@@ -324,34 +328,7 @@ def _vnl(*args, env=None, timeout=900):
     )
 
 
-@pytest.mark.xdist_group("ant_run-c")
-def test_resume_with_c_physics_is_bit_exact(tmp_path):
-    """ant_run on MuJoCo C: K steps, then --resume to 2K, equals 2K steps in one go, bit for bit
-    (parameters, optimizer state, env states, keys and metrics)."""
-    from vnl.io import checkpoint
-    from vnl.io import metrics as metrics_io
-
-    k = 2048
-    ref, part = tmp_path / "ref", tmp_path / "part"
-    # Both runs have epochs of k steps (evaluations at 0, k, 2k), as a resumed run keeps its own.
-    p = _vnl("train", "ant_run", *TINY_C, "--steps", 2 * k, "--set", "ppo.num_evals=3", "--out", ref)
-    assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-2000:]
-    assert "physics MuJoCo C" in p.stdout
-    p = _vnl("train", "ant_run", *TINY_C, "--steps", k, "--out", part)
-    assert p.returncode == 0, p.stderr[-2000:]
-    p = _vnl("train", "--resume", part, "--steps", 2 * k, "--no-compile-cache", "--set", "env_config.threads=1")
-    assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-2000:]
-    assert checkpoint.steps(ref) == checkpoint.steps(part) == [0, k, 2 * k]
-    _, a, _ = checkpoint.load_train_state(ref)
-    _, b, _ = checkpoint.load_train_state(part)
-    assert a.keys() == b.keys() and any(".env" in key and "qacc_warmstart" in key for key in a)
-    for key in a:
-        np.testing.assert_array_equal(a[key], b[key], err_msg=key)
-    timing = ("wall_time", "env_steps_per_sec", "training/sps", "training/walltime", "eval/walltime", "eval/sps")
-    timing += ("eval/epoch_eval_time",)
-    untimed = lambda rs: [{k: v for k, v in r.items() if k not in timing} for r in rs]  # noqa: E731
-    records = [metrics_io.read(run / "metrics.jsonl") for run in (ref, part)]
-    assert [r["step"] for r in records[1]] == [0, k, 2 * k] and untimed(records[0]) == untimed(records[1])
+# Exact resume with C physics (and a changed thread count): tests/test_research.py, on ant_run.
 
 
 def test_trains_with_c_physics_on_two_devices(tmp_path):

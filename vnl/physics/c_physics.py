@@ -242,10 +242,13 @@ class CPhysics:
 
     def _key(self, op: tuple[Any, ...], names: tuple[str, ...]) -> int:
         """The host function for `op` with per-env `names`, registered under a key that depends
-        only on what it computes (so a cached program finds it in a later process)."""
+        only on what it computes and on the thread count (so a cached program finds it in a later
+        process, and two envs of one model with different thread counts keep their own: with a
+        key shared by them the last one made served both)."""
         spec = (op, names)
         if spec not in self._keys:
-            h = hashlib.sha256(self._digest + repr((spec, STATE, DERIVED)).encode()).digest()
+            what = repr((spec, STATE, DERIVED, self.threads)).encode()
+            h = hashlib.sha256(self._digest + what).digest()
             key = int.from_bytes(h[:8], "little")
             fn = (lambda i, o: self._host_step(op[1], names, i, o)) if op[0] == "step" else None
             fn = fn or (lambda i, o: self._host_forward(names, i, o))
