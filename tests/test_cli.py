@@ -30,10 +30,14 @@ def run(*args, timeout=900):
 
 # Session scope: under xdist's loadgroup other modules' tests can run between this module's on
 # the same worker, and a module fixture was torn down and trained again (206 s twice in CI).
+C_PHYSICS = ("--set", "env_config.impl=c")
+
+
 @pytest.fixture(scope="session")
 def trained_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("cli") / "ant"
-    p = run("train", "ant_run", "--preset", "tiny", "--out", out, "--set", "log.video_seconds=0.5")
+    # MuJoCo C physics: nothing of MuJoCo is compiled by XLA (MJX's ant took 232 s here in CI).
+    p = run("train", "ant_run", "--preset", "tiny", "--out", out, "--set", "log.video_seconds=0.5", *C_PHYSICS)
     assert p.returncode == 0, p.stdout + p.stderr
     return out, p.stdout
 
@@ -112,6 +116,7 @@ def test_sigterm_stops_cleanly_and_keeps_checkpoint(tmp_path):
             "2000000",
             "--set",
             "ppo.num_evals=400",
+            *C_PHYSICS,
         ],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,

@@ -64,14 +64,24 @@ def batch_size(name):
     return 2 if name.startswith("rodent") else 4
 
 
-@functools.cache
 def env(name, impl="jax"):
+    return _env(name, impl)  # one cache key for env(n) and env(n, "jax")
+
+
+@functools.cache
+def _env(name, impl):
     return vnl.make(name, impl=impl)
 
 
-@functools.cache
 def random_rollout(name, impl="jax"):
-    """(initial state, per-step outputs, actions) for STEPS steps; per-step `data` holds FIELDS."""
+    """(initial state, per-step outputs, actions) for STEPS steps; per-step `data` holds FIELDS.
+    Cached per (name, impl): `random_rollout(n)` and `random_rollout(n, "jax")` share one compile
+    (functools.cache keys them apart, which compiled every MJX rat rollout twice)."""
+    return _random_rollout(name, impl)
+
+
+@functools.cache
+def _random_rollout(name, impl):
     e = env(name, impl)
     b = batch_size(name)
 

@@ -262,7 +262,8 @@ TWO_PROCESSES = textwrap.dedent(
     if mode == "train":
         out["rc"] = main([
             "train", "test_point", "--preset", "tiny", "--no-video", "--out", {run!r},
-            "--set", "randomize.joint_damping=[0.2,5.0]", "--set", "ppo.num_timesteps=2048", *join,
+            "--set", "randomize.joint_damping=[0.2,5.0]", "--set", "ppo.num_timesteps=2048",
+            "--set", "env_config.impl=c", *join,
         ])
     else:
         out["rc"] = main(["train", "--resume", {run!r}, "--steps", "4096", *join])

@@ -336,6 +336,7 @@ def test_vision_run_trains_resumes_evaluates_and_renders_what_the_policy_sees(tm
     vnl_cmd = [sys.executable, "-m", "vnl.cli"]
     small = ["vision.width=16", "vision.height=16", "network.cnn_channels=[4]", "network.cnn_kernel_sizes=[3]"]
     small += ["network.cnn_strides=[2]", "network.cnn_pool=spatial_softmax", "ppo.num_timesteps=2048"]
+    small += ["env_config.impl=c"]  # MuJoCo C physics: four programs (train, resume, eval, render) compile faster
     args = ["train", "find_target", "--vision", "--preset", "tiny", "--out", str(out), "--no-video"]
     for a in small:
         args += ["--set", a]
