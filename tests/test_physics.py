@@ -269,14 +269,16 @@ def test_in_graph_camera_sees_c_physics_states():
     np.testing.assert_array_equal(s.obs[key], env.pixels(s.data))
 
 
-def test_cpu_presets_choose_c_physics_for_the_rat():
+def test_cpu_presets_choose_c_physics():
     from vnl.train import config as train_config
 
-    for name in ("rodent_run", "rodent_run_gaps", "rodent_escape_bowl"):
+    for name in ("rodent_run", "rodent_run_gaps", "rodent_escape_bowl", "ant_run", "ant_run_gaps", "ant_escape_bowl"):
         cfg = train_config.build(name, "cpu")
         assert cfg.resolved_env_config().impl == "c"
         assert train_config.build(name, "gpu").resolved_env_config().impl == "jax"
         assert train_config.build(name, "cpu", assignments=["env_config.impl=jax"]).resolved_env_config().impl == "jax"
+    assert train_config.build("humanoid_run", "cpu").resolved_env_config().impl == "c"
+    assert train_config.build("ant_run", "tiny").resolved_env_config().impl == "jax"  # tests' smoke preset
 
 
 CACHE_SCRIPT = textwrap.dedent(
