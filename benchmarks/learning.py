@@ -1,0 +1,143 @@
+"""Does each task learn? Trains envs with a preset (default `cpu`) and tabulates what they learned.
+
+For each env and seed: `vnl train ENV --preset P --seed S --no-video --out OUT/ENV-sS` (a run that
+finished is skipped, one that stopped is resumed), then one table row from its metrics.jsonl: the
+untrained policy (the step-0 evaluation) against the trained one (the last evaluation): eval
+reward and the env's task measures, env steps, wall minutes of the run (compiles and evaluations
+included) and training env steps/s. With several seeds a last row per env gives mean and spread
+(min-max). The runs are left in OUT, so `vnl plot OUT/ENV-s*` draws the curves (this script draws
+the reward and the task measure of each env into OUT/ENV_<metric>.png), `vnl render OUT/ENV-s0`
+shows the behaviour, and OUT/learning.md holds the table.
+
+    .venv/bin/python benchmarks/learning.py --out runs/learning [--envs ant_run rodent_run ...]
+        [--seeds 0 1] [--preset cpu] [--set KEY=VALUE ...] [--compile-cache DIR]
+
+Task measures (eval metrics, per evaluation episode): run tasks: mean forward velocity (m/s) and
+the fraction of the episode upright; gaps: gaps crossed and distance along the corridor (m); bowl:
+the fraction of episodes that left the bowl.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+from pathlib import Path
+
+import yaml
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from curriculum import vnl  # noqa: E402  (the `vnl` command runner of the sibling benchmark)
+
+ENVS = ["ant_run", "rodent_run", "rodent_run_gaps", "rodent_escape_bowl", "ant_run_gaps", "ant_escape_bowl"]
+ENVS += ["humanoid_run"]
+# (column, metrics.jsonl key, format): the measures that say what the animal did, per task.
+MEASURES = {
+    "run": [("vx (m/s)", "eval/mean_forward_velocity", "+.2f"), ("upright", "eval/upright_fraction", ".2f")],
+    "gaps": [
+        ("gaps crossed", "eval/episode_measure/gaps_crossed", ".2f"),
+        ("distance (m)", "eval/episode_measure/distance", ".2f"),
+    ],
+    "bowl": [("escaped", "eval/episode_measure/escaped", ".2f")],
+}
+
+
+def task_of(env: str) -> str:
+    return "gaps" if env.endswith("run_gaps") else "bowl" if env.endswith("escape_bowl") else "run"
+
+
+def records(run: Path) -> list[dict]:
+    path = run / "metrics.jsonl"
+    if not path.is_file():
+        return []
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+
+
+def train(run: Path, env: str, seed: int, args: argparse.Namespace) -> None:
+    """`vnl train` into `run` unless it finished (its last record reached ppo.num_timesteps)."""
+    cache = args.compile_cache
+    config = run / "config.yaml"
+    if config.is_file() and (run / "checkpoints").is_dir():
+        total = yaml.safe_load(config.read_text())["ppo"]["num_timesteps"]
+        done = records(run)
+        if done and done[-1]["step"] >= total:
+            print(f"[learning] {run} finished; skipping", flush=True)
+            return
+        vnl("train", "--resume", str(run), cache=cache)
+        return
+    sets = [x for a in args.set for x in ("--set", a)]
+    vnl("train", env, "--preset", args.preset, "--seed", str(seed), "--no-video", *sets, "--out", str(run), cache=cache)
+
+
+def value(record: dict, key: str) -> float:
+    v = record.get(key)
+    return float("nan") if v is None else float(v)
+
+
+def row(env: str, seed: str, first: dict, last: dict, steps_per_sec: float) -> str:
+    """`| env | seed | reward untrained -> trained | measures ... | steps | minutes | steps/s |`."""
+    cells = [env, seed, f"{value(first, 'eval/episode_reward'):.1f} → {value(last, 'eval/episode_reward'):.1f}"]
+    for _, key, spec in MEASURES[task_of(env)]:
+        cells.append(f"{format(value(first, key), spec)} → {format(value(last, key), spec)}")
+    cells += [f"{int(last['step']):,}", f"{value(last, 'wall_time') / 60:.1f}", f"{steps_per_sec:,.0f}"]
+    return "| " + " | ".join(cells) + " |"
+
+
+def spread(env: str, runs: list[list[dict]]) -> str:
+    """Mean (min-max) over seeds of the trained values."""
+    lasts = [r[-1] for r in runs]
+
+    def cell(key: str, spec: str) -> str:
+        xs = [value(r, key) for r in lasts]
+        return f"{format(statistics.mean(xs), spec)} ({format(min(xs), spec)}–{format(max(xs), spec)})"
+
+    cells = [f"**{env}**", f"mean of {len(runs)}", cell("eval/episode_reward", ".1f")]
+    cells += [cell(key, spec) for _, key, spec in MEASURES[task_of(env)]]
+    return "| " + " | ".join(cells + ["", cell("wall_time", ".0f") + " s", ""]) + " |"
+
+
+def table(env: str, runs: dict[int, list[dict]]) -> list[str]:
+    head = ["env", "seed", "eval reward (untrained → trained)"] + [c for c, _, _ in MEASURES[task_of(env)]]
+    head += ["env steps", "minutes", "training steps/s"]
+    lines = ["| " + " | ".join(head) + " |", "|---|---|" + "---:|" * (len(head) - 2)]
+    for seed, recs in runs.items():
+        sps = [r["env_steps_per_sec"] for r in recs[1:] if r.get("env_steps_per_sec")]
+        lines.append(row(env, str(seed), recs[0], recs[-1], statistics.median(sps) if sps else float("nan")))
+    if len(runs) > 1:
+        lines.append(spread(env, list(runs.values())))
+    return lines
+
+
+def curves(env: str, dirs: list[Path], out: Path) -> None:
+    """`vnl plot` of the reward and of the task's first measure, all seeds of `env` in one figure."""
+    for key in ("eval/episode_reward", MEASURES[task_of(env)][0][1]):
+        png = out / f"{env}_{key.rsplit('/', 1)[-1]}.png"
+        vnl("plot", *map(str, dirs), "--metric", key, "--out", str(png), cache=None)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", required=True, help="directory for the runs, curves and learning.md")
+    parser.add_argument("--envs", nargs="+", default=ENVS)
+    parser.add_argument("--seeds", nargs="+", type=int, default=[0])
+    parser.add_argument("--preset", default="cpu")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="for every run")
+    parser.add_argument("--compile-cache", help="JAX compilation cache directory (default: vnl's)")
+    args = parser.parse_args()
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    lines = [f"Preset `{args.preset}`" + (f", `--set {' '.join(args.set)}`" if args.set else "") + ".", ""]
+    for env in args.envs:
+        dirs = [out / f"{env}-s{seed}" for seed in args.seeds]
+        for seed, run in zip(args.seeds, dirs, strict=True):
+            train(run, env, seed, args)
+        curves(env, dirs, out)
+        lines += table(env, {seed: records(run) for seed, run in zip(args.seeds, dirs, strict=True)}) + [""]
+        (out / "learning.md").write_text("\n".join(lines))
+    print("\n".join(lines))
+    print(f"[learning] wrote {out / 'learning.md'}")
+
+
+if __name__ == "__main__":
+    main()

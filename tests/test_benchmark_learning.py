@@ -1,0 +1,35 @@
+"""benchmarks/learning.py at a tiny scale: the runs, the table (with the spread over seeds), the
+curves, and a second invocation that skips the finished runs."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+pytestmark = pytest.mark.xdist_group("benchmark_learning")
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_learning_benchmark_tabulates_untrained_and_trained_runs(tmp_path):
+    out = tmp_path / "learning"
+    cmd = [sys.executable, str(ROOT / "benchmarks" / "learning.py"), "--out", str(out), "--envs", "ant_run"]
+    cmd += ["--seeds", "0", "1", "--preset", "tiny", "--set", "env_config.impl=c", "--set", "ppo.num_timesteps=1024"]
+    cmd += ["--compile-cache", str(tmp_path / "cache")]
+    p = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=900)
+    assert p.returncode == 0, p.stdout[-3000:] + p.stderr[-3000:]
+    table = (out / "learning.md").read_text()
+    for seed in (0, 1):
+        recs = [json.loads(x) for x in (out / f"ant_run-s{seed}" / "metrics.jsonl").read_text().splitlines()]
+        first, last = recs[0], recs[-1]
+        reward = f"{first['eval/episode_reward']:.1f} → {last['eval/episode_reward']:.1f}"
+        vx = f"{first['eval/mean_forward_velocity']:+.2f} → {last['eval/mean_forward_velocity']:+.2f}"
+        assert f"| ant_run | {seed} | {reward} | {vx} |" in table, table
+        assert f"| {last['step']:,} |" in table
+    assert "| **ant_run** | mean of 2 |" in table
+    for png in ("ant_run_episode_reward.png", "ant_run_mean_forward_velocity.png"):
+        assert (out / png).stat().st_size > 10_000, png
+    again = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=300)
+    assert again.returncode == 0 and again.stdout.count("finished; skipping") == 2, again.stdout[-2000:]
