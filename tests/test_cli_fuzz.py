@@ -22,13 +22,16 @@ from vnl.train import config as train_config
 pytestmark = pytest.mark.xdist_group("cli_fuzz")
 
 ROOT = Path(__file__).resolve().parents[1]
-COMMANDS = ["list", "train", "eval", "render", "plot", "record", "analyze"]
+COMMANDS = ["list", "train", "eval", "render", "plot", "record", "analyze", "compare", "view"]
 # flag -> (commands, smallest valid value)
 NUMBERS = {
-    "--steps": (["train", "eval", "render", "record"], 1),
-    "--episodes": (["eval", "record"], 1),
-    "--step": (["eval", "render", "record"], 0),
-    "--seed": (["train", "eval", "render", "record"], 0),
+    "--steps": (["train", "eval", "render", "record", "compare", "view"], 1),
+    "--episodes": (["eval", "record", "compare"], 1),
+    "--step": (["eval", "render", "record", "view"], 0),
+    "--seed": (["train", "eval", "render", "record", "compare", "view"], 0),
+    "--episode": (["view"], 0),
+    "--units": (["view"], 0),
+    "--max-samples": (["compare"], 1),
     "--num-envs": (["train"], 1),
     "--from-step": (["train"], 0),
     "--num-processes": (["train"], 1),
@@ -94,9 +97,9 @@ def _fixtures(root: Path) -> None:
 
 def _positional(command: str) -> list[str]:
     """Valid positional arguments for `command` (so that the flag under test is the only fault)."""
-    return {"train": ["ant_run"], "eval": ["run"], "render": ["run"], "plot": ["run"], "record": ["run"]}.get(
-        command, ["rec.nc"] if command == "analyze" else []
-    )
+    given = {"train": ["ant_run"], "eval": ["run"], "render": ["run"], "plot": ["run"], "record": ["run"]}
+    given |= {"analyze": ["rec.nc"], "compare": ["run", "run"], "view": ["run"]}
+    return given.get(command, [])
 
 
 def bad_invocations() -> list[list[str]]:
@@ -118,7 +121,7 @@ def bad_invocations() -> list[list[str]]:
     cases += [["train", "--resume", d] for d in ["missing", "afile.txt", "norun", "run_bad_yaml"]]
     cases += [["plot", "run", d] for d in ["missing", "run_no_ckpt"]]
     cases += [["analyze", p] for p in ["missing.nc", "a_dir"]]
-    for c in ["eval", "render", "record", "plot", "analyze"]:  # unwritable --out
+    for c in ["eval", "render", "record", "plot", "analyze", "compare", "view"]:  # unwritable --out
         cases += [[c, *_positional(c), "--out", out] for out in ["missing_dir/x.out", "afile.txt/x.out", "a_dir"]]
     cases += [["train", "ant_run", "--out", "afile.txt"]]
     cases += [["train", "ant_run", "--config", f] for f in ["missing.yaml", "a_dir", "bad.yaml", "list.yaml"]]
@@ -146,6 +149,8 @@ def bad_invocations() -> list[list[str]]:
         ["analyze", "rec.nc", "--layer", "value_output"],
     ]
     cases += [["analyze", "rec.nc", "--layer", "nope"], ["analyze", "rec.nc", "--color", "nope"]]
+    cases += [["compare", "run"], ["compare", "missing", "run"], ["compare", "run", "run", "--recording", "missing.nc"]]
+    cases += [["compare", "run@x", "run"], ["view", "missing"], ["view", "run", "--episode", "2"]]
     return cases
 
 

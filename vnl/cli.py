@@ -571,13 +571,7 @@ def _compare_parser(sub: Any) -> None:
     _cache_flags(p)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="vnl", description="Virtual Neuroscience Lab")
-    sub = parser.add_subparsers(dest="command", required=True)
-
-    p = sub.add_parser("list", help="list environments")
-    p.add_argument("--verbose", "-v", action="store_true", help="observation layout and cameras")
-
+def _train_parser(sub: Any) -> None:
     p = sub.add_parser("train", help="train with Brax PPO (or continue a run with --resume)")
     p.add_argument("env", nargs="?", help="environment name (see `vnl list`)")
     p.add_argument("--resume", metavar="RUN_DIR", help="continue this run from its newest good checkpoint")
@@ -604,6 +598,16 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--coordinator", metavar="HOST:PORT", help="manual launch: process 0's address")
     g.add_argument("--num-processes", type=_POSITIVE, metavar="N", help="manual launch: number of processes")
     g.add_argument("--process-id", type=_NON_NEGATIVE, metavar="I", help="manual launch: this process's index (0..N-1)")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="vnl", description="Virtual Neuroscience Lab")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("list", help="list environments")
+    p.add_argument("--verbose", "-v", action="store_true", help="observation layout and cameras")
+
+    _train_parser(sub)
 
     p = sub.add_parser("eval", help="evaluate a trained run")
     p.add_argument("run_dir")

@@ -187,17 +187,15 @@ def table(result: Comparison) -> str:
 
 def heatmap(result: Comparison, out: str | Path) -> Path:
     """A PNG with one heatmap per pair of networks (layers × layers, values written in)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure  # no pyplot: no process-wide backend or figure registry
 
     pairs = list(result.pairs.items())
     if not pairs:
         raise VnlError("nothing to compare: give at least two networks")
     cols = min(len(pairs), 3)
     rows = -(-len(pairs) // cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(5.2 * cols, 4.6 * rows), squeeze=False)
+    fig = Figure(figsize=(5.2 * cols, 4.6 * rows))
+    axes = fig.subplots(rows, cols, squeeze=False)
     label = "linear CKA" if result.measure == "cka" else f"RSA ({result.distance})"
     for ax, ((i, j), m) in zip(axes.flat, pairs, strict=False):
         image = ax.imshow(m, vmin=0 if result.measure == "cka" else -1, vmax=1, cmap="viridis")
@@ -214,7 +212,6 @@ def heatmap(result: Comparison, out: str | Path) -> Path:
     fig.tight_layout()
     out = Path(out)
     fig.savefig(out, dpi=100)
-    plt.close(fig)
     return out
 
 

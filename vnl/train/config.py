@@ -182,6 +182,9 @@ class StageConfig:
     env_config: dict[str, Any] = dataclasses.field(default_factory=dict)
     name: str | None = None
 
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "env_config", config_lib.freeze(self.env_config))  # no shared mutable dict
+
     def validate(self) -> None:
         if self.steps < 1:
             raise VnlError(f"steps must be >= 1, got {self.steps}")
