@@ -20,12 +20,13 @@ the fraction of episodes that left the bowl.
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
 import sys
 from pathlib import Path
 
 import yaml
+
+from vnl.io import metrics as metrics_io
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from curriculum import vnl  # noqa: E402  (the `vnl` command runner of the sibling benchmark)
@@ -49,9 +50,7 @@ def task_of(env: str) -> str:
 
 def records(run: Path) -> list[dict]:
     path = run / "metrics.jsonl"
-    if not path.is_file():
-        return []
-    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    return metrics_io.read(path) if path.is_file() else []
 
 
 def train(run: Path, env: str, seed: int, args: argparse.Namespace) -> None:
