@@ -218,6 +218,20 @@ def test_curriculum_config_errors_name_the_problem(staged):
         ppo.resume(out, assignments=["curriculum=[]"], say=quiet)
 
 
+def test_an_env_preset_may_be_a_curriculum_whose_last_stage_is_the_users_task():
+    """ant_run_gaps' cpu preset: no gaps, short gaps, then the env config the user asked for."""
+    config = train_config.build("ant_run_gaps", "cpu")
+    config.validate()
+    stages = [config.stage(i).resolved_env_config().corridor.gap_length for i in range(len(config.curriculum))]
+    assert stages == [(0.0, 0.0), (0.125, 0.25), (0.125, 0.5)]
+    assert config.ppo.num_timesteps == sum(stage.steps for stage in config.curriculum)  # a frozen preset's stages
+    longer = train_config.build("ant_run_gaps", "cpu", assignments=["env_config.corridor.gap_length=[0.5,1.0]"])
+    assert longer.stage(len(longer.curriculum) - 1).resolved_env_config().corridor.gap_length == (0.5, 1.0)
+    with pytest.raises(VnlError, match="sum of its stages' steps"):
+        train_config.build("ant_run_gaps", "cpu", flags={"ppo": {"num_timesteps": 1000}}).validate()
+    assert train_config.build("ant_run_gaps", "cpu", assignments=["curriculum=[]"]).curriculum == ()
+
+
 @pytest.fixture(scope="module")
 def parent_seed1(tmp_path_factory):
     """`parent`'s config with another seed (its programs come from the compilation cache)."""

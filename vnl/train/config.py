@@ -238,8 +238,8 @@ class TrainConfig:
         if self.curriculum and self.ppo.num_timesteps != total:
             raise VnlError(
                 f"with a curriculum the run's length is the sum of its stages' steps ({total:,}), but "
-                f"ppo.num_timesteps is {self.ppo.num_timesteps:,}; drop --steps / ppo.num_timesteps or change "
-                "the stages' steps"
+                f"ppo.num_timesteps is {self.ppo.num_timesteps:,}; drop --steps / ppo.num_timesteps, change "
+                "the stages' steps, or train without the curriculum (--set curriculum=[])"
             )
 
     def stage(self, index: int) -> TrainConfig:
@@ -341,7 +341,7 @@ def _curriculum_length(values: dict[str, Any], explicit: bool) -> dict[str, Any]
     """With a curriculum, `ppo.num_timesteps` defaults to the sum of the stages' steps (a value
     given explicitly is kept, and `TrainConfig.validate` says when it disagrees)."""
     stages = values.get("curriculum")
-    if explicit or not isinstance(stages, list) or not stages:
+    if explicit or not isinstance(stages, (list, tuple)) or not stages:
         return values
     try:
         total = sum(int(stage["steps"]) for stage in stages)
