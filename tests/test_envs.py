@@ -483,3 +483,23 @@ def test_c_and_mjx_agree_from_the_same_states(name, impl):
     print(name, "median/max of qpos, qvel (rel), reward (rel) differences:", measured)
     for (median, worst), median_tol, max_tol in zip(measured, MEDIAN_TOL, MAX_TOL, strict=True):
         assert median < median_tol and worst < max_tol, measured
+
+
+@pytest.mark.xdist_group("ant_run_gaps-c")
+def test_the_ant_observes_the_corridors_direction_and_its_offset_from_the_centre_line():
+    """`observe_corridor` (ant_run_gaps' default): the last 4 observations are the world x-axis in
+    the root's frame and y / half-width; turned 90° left and moved 1.25 m to the left, they read
+    (0, -1, 0) and 0.5. The rat's corridor (dm_control's observation) does not have them."""
+    env = vnl.make("ant_run_gaps", impl="c")
+    assert env.observation_layout()[-1] == ("corridor", 4)
+    assert "corridor" not in dict(vnl.make("rodent_run_gaps", impl="c").observation_layout())
+    state = jax.jit(env.reset)(jax.random.PRNGKey(0))
+    assert np.allclose(state.obs[-4:-1], [1.0, 0.0, 0.0], atol=0.05) and abs(float(state.obs[-1])) < 0.01
+    i = env._free_qpos
+    quat = jp.array([np.cos(np.pi / 4), 0.0, 0.0, np.sin(np.pi / 4)])  # yaw +90°
+    qpos = state.data.qpos.at[i + 1].set(1.25).at[i + 3 : i + 7].set(quat)
+    state = state.replace(data=env.forward(state.data.replace(qpos=qpos, qvel=jp.zeros_like(state.data.qvel))))
+    state = jax.jit(env.step)(state, jp.zeros(env.action_size))
+    assert np.allclose(state.obs[-4:-1], [0.0, -1.0, 0.0], atol=0.05)
+    assert float(state.obs[-1]) == pytest.approx(0.5, abs=0.02)
+    assert state.obs.shape == (env.observation_size,)
