@@ -31,6 +31,8 @@ from pathlib import Path
 
 import yaml
 
+from vnl.io import metrics as metrics_io
+
 ROOT = Path(__file__).resolve().parents[1]
 GAPS = "env_config.corridor.gap_length"
 
@@ -43,12 +45,14 @@ def vnl(*args: str, cache: str | None) -> None:
         raise SystemExit(f"failed: vnl {' '.join(args)}")
 
 
-def finished(run: Path, steps: int) -> bool:
+def records(run: Path) -> list[dict]:
     path = run / "metrics.jsonl"
-    if not path.is_file():
-        return False
-    records = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
-    return bool(records) and records[-1]["step"] >= steps
+    return metrics_io.read(path) if path.is_file() else []
+
+
+def finished(run: Path, steps: int) -> bool:
+    done = records(run)
+    return bool(done) and done[-1]["step"] >= steps
 
 
 def train(run: Path, steps: int, train_args: list[str], cache: str | None) -> None:
@@ -61,9 +65,12 @@ def train(run: Path, steps: int, train_args: list[str], cache: str | None) -> No
         vnl("train", *train_args, "--out", str(run), cache=cache)
 
 
-def common(args: argparse.Namespace, steps: int) -> list[str]:
-    """The settings every run shares: preset, seed, extra --set values, the evaluation interval."""
+def common(args: argparse.Namespace, steps: int, staged: bool = False) -> list[str]:
+    """The settings every run shares: preset, seed, extra --set values, the evaluation interval.
+    Runs on one gap range (not `staged`) drop a curriculum the preset may hold (ant_run_gaps'
+    cpu preset is one)."""
     out = ["--preset", args.preset, "--seed", str(args.seed), "--no-video"]
+    out += [] if staged else ["--set", "curriculum=[]"]
     for assignment in args.set:
         out += ["--set", assignment]
     return out + ["--set", f"ppo.num_evals={steps // args.eval_every + 1}"]
@@ -85,8 +92,7 @@ def curriculum_file(args: argparse.Namespace, out: Path) -> Path:
 
 
 def last(run: Path) -> dict[str, float]:
-    records = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines() if line.strip()]
-    return records[-1]
+    return records(run)[-1]
 
 
 def summary(args: argparse.Namespace, runs: dict[str, Path], compare_json: Path) -> str:
@@ -159,7 +165,7 @@ def main() -> None:
     if not args.no_curriculum:
         runs["curriculum"] = out / "curriculum"
         config = ["--config", str(curriculum_file(args, out))]
-        train(runs["curriculum"], total, [args.env, *config, *common(args, total)], cache)
+        train(runs["curriculum"], total, [args.env, *config, *common(args, total, staged=True)], cache)
     curves = [str(runs[k]) for k in ("warm", "scratch", "curriculum") if k in runs]
     for metric, name in (("measure/gaps_crossed", "gaps_crossed"), ("episode_reward", "episode_reward")):
         vnl("plot", *curves, "--lineage", "--metric", metric, "--out", str(out / f"{name}.png"), cache=None)
