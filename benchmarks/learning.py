@@ -14,7 +14,8 @@ shows the behaviour, and OUT/learning.md holds the table.
 
 Task measures (eval metrics, per evaluation episode): run tasks: mean forward velocity (m/s) and
 the fraction of the episode upright; gaps: gaps crossed and distance along the corridor (m); bowl:
-the fraction of episodes that left the bowl.
+the fraction of episodes that left the bowl and the seconds spent in it (the whole episode for
+those that did not leave).
 """
 
 from __future__ import annotations
@@ -40,7 +41,10 @@ MEASURES = {
         ("gaps crossed", "eval/episode_measure/gaps_crossed", ".2f"),
         ("distance (m)", "eval/episode_measure/distance", ".2f"),
     ],
-    "bowl": [("escaped", "eval/episode_measure/escaped", ".2f")],
+    "bowl": [
+        ("escaped", "eval/episode_measure/escaped", ".2f"),
+        ("time in bowl (s)", "eval/episode_measure/time_in_bowl", ".1f"),
+    ],
 }
 
 
@@ -87,13 +91,13 @@ def spread(env: str, runs: list[list[dict]]) -> str:
     """Mean (min-max) over seeds of the trained values."""
     lasts = [r[-1] for r in runs]
 
-    def cell(key: str, spec: str) -> str:
-        xs = [value(r, key) for r in lasts]
+    def cell(key: str, spec: str, scale: float = 1.0) -> str:
+        xs = [value(r, key) / scale for r in lasts]
         return f"{format(statistics.mean(xs), spec)} ({format(min(xs), spec)}–{format(max(xs), spec)})"
 
     cells = [f"**{env}**", f"mean of {len(runs)}", cell("eval/episode_reward", ".1f")]
     cells += [cell(key, spec) for _, key, spec in MEASURES[task_of(env)]]
-    return "| " + " | ".join(cells + ["", cell("wall_time", ".0f") + " s", ""]) + " |"
+    return "| " + " | ".join(cells + ["", cell("wall_time", ".1f", scale=60.0), ""]) + " |"
 
 
 def table(env: str, runs: dict[int, list[dict]]) -> list[str]:
