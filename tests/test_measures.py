@@ -19,6 +19,9 @@ def test_gaps_behind_counts_the_gaps_whose_far_edge_was_passed():
     layout = gaps.Layout(start=start, length=length)
     for x, n in [(-1.0, 0), (1.0, 0), (2.5, 0), (3.4, 0), (3.5, 1), (4.9, 1), (5.0, 2), (100.0, 2)]:
         assert float(gaps.gaps_behind(layout, jp.float32(x))) == n, x
+    # Abutting platforms ~30 m along, whose float32 end and start differ by micrometres: no gap.
+    touching = gaps.Layout(start=jp.array([30.0, 31.0 + 4e-6]), length=jp.array([1.0, 1.0]))
+    assert float(gaps.gaps_behind(touching, jp.float32(40.0))) == 0
 
 
 @pytest.mark.xdist_group("rodent_run_gaps-c")
@@ -46,7 +49,7 @@ def test_a_scripted_walk_through_the_corridor_counts_each_gap_once():
     n_gaps = sum(
         1
         for (a0, b0), (a1, _) in zip(platforms, platforms[1:], strict=False)
-        if spawn < a1 <= furthest and a1 > b0 + 1e-6
+        if spawn < a1 <= furthest and a1 > b0 + 1e-3
     )
     assert crossed == expected == n_gaps >= 3
     assert distance == pytest.approx(furthest - spawn, abs=0.1)  # (the rat moves a little in each step)

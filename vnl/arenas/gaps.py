@@ -176,7 +176,9 @@ def gaps_behind(layout: Layout, x: jax.Array) -> jax.Array:
     """Number of gaps whose far edge (the start of the platform after the gap) is at or before
     `x`: the gaps a walker at `x` has crossed, counted from the corridor's start. Float32 scalar."""
     start, end = layout.start, layout.start + layout.length
-    gap = jp.concatenate([jp.zeros(1, bool), start[1:] > end[:-1] + 1e-6]) & jp.isfinite(start)
+    # A gap is at least 1 mm: platform ends and starts are float32 sums, which differ by a few
+    # micrometres ~30 m down the corridor even where gap_length is 0.
+    gap = jp.concatenate([jp.zeros(1, bool), start[1:] > end[:-1] + 1e-3]) & jp.isfinite(start)
     return jp.sum(gap & (start <= x)).astype(jp.float32)
 
 
