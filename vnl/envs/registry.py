@@ -63,7 +63,8 @@ _C_ON_CPU = {"cpu": {"env_config": {"impl": "c"}}}
 # ant_run_gaps on a CPU: the blind ant walking slowly steps into the first gaps (5M steps of the
 # default preset: 1.3 gaps crossed, 5.0 m; README, Results). It first learns to run in the same
 # corridor without gaps, then with short gaps, then on the run's own gaps (the last stage has no
-# overrides, so `--set env_config.corridor...` still sets the task it ends on).
+# overrides, so `--set env_config.corridor...` still sets the task it ends on). Measured: 1.6-2.0
+# gaps crossed (2 seeds, 15 min); the blind ant cannot see the gaps.
 _ANT_GAPS_PRESETS = {
     "cpu": {
         "env_config": {"impl": "c"},
