@@ -27,10 +27,8 @@ from pathlib import Path
 
 import yaml
 
-from vnl.io import metrics as metrics_io
-
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from curriculum import vnl  # noqa: E402  (the `vnl` command runner of the sibling benchmark)
+from curriculum import records, vnl  # noqa: E402  (the sibling benchmark's command runner and metrics reader)
 
 ENVS = ["ant_run", "rodent_run", "rodent_run_gaps", "rodent_escape_bowl", "ant_run_gaps", "ant_escape_bowl"]
 ENVS += ["humanoid_run"]
@@ -50,11 +48,6 @@ MEASURES = {
 
 def task_of(env: str) -> str:
     return "gaps" if env.endswith("run_gaps") else "bowl" if env.endswith("escape_bowl") else "run"
-
-
-def records(run: Path) -> list[dict]:
-    path = run / "metrics.jsonl"
-    return metrics_io.read(path) if path.is_file() else []
 
 
 def train(run: Path, env: str, seed: int, args: argparse.Namespace) -> None:
