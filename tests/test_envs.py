@@ -10,6 +10,7 @@ import pytest
 
 import vnl
 from vnl import physics
+from vnl.arenas import gaps
 from vnl.envs import registry
 from vnl.errors import VnlError
 from vnl.tasks.run import Run
@@ -503,3 +504,23 @@ def test_the_ant_observes_the_corridors_direction_and_its_offset_from_the_centre
     assert np.allclose(state.obs[-4:-1], [0.0, -1.0, 0.0], atol=0.05)
     assert float(state.obs[-1]) == pytest.approx(0.5, abs=0.02)
     assert state.obs.shape == (env.observation_size,)
+
+
+def test_ground_scan_reads_platforms_and_gaps_ahead_from_the_episodes_layout():
+    """`ground_scan`: 1 where the corridor floor d metres ahead of the root is a platform, 0 over a
+    gap or past the corridor's end; checked against the layout's (start, end) intervals at 601
+    distances, after reset and after a step (the root moved)."""
+    scan = tuple(float(d) for d in np.arange(0.0, 30.0, 0.05)) + (200.0,)
+    env = vnl.make("ant_run_gaps", impl="c", ground_scan=scan)
+    assert env.observation_layout()[-2:] == [("corridor", 4), ("ground_ahead", len(scan))]
+    state = jax.jit(env.reset)(jax.random.PRNGKey(3))
+    intervals = gaps.layout_numpy(state.info["layout"])
+    for state in (state, jax.jit(env.step)(state, jp.zeros(env.action_size))):
+        x = float(state.data.xpos[env._root, 0]) + np.asarray(scan, np.float32)
+        expected = [any(a <= p <= b for a, b in intervals) for p in x]
+        got = np.asarray(state.obs[-len(scan) :])
+        assert set(np.unique(got)) == {0.0, 1.0} and got[-1] == 0.0
+        close = [min(abs(p - e) for a, b in intervals for e in (a, b)) < 1e-4 for p in x]  # float32 edges
+        assert all(g == e for g, e, c in zip(got, expected, close, strict=True) if not c)
+    with pytest.raises(VnlError, match="ground_scan"):
+        vnl.make("ant_run_gaps", ground_scan=(float("nan"),))

@@ -54,6 +54,11 @@ class RunGapsConfig(WalkerTaskConfig):
     # the root's sideways offset from the corridor's centre line in half-widths (4 numbers). A blind
     # walker cannot otherwise keep its heading: the ant drifts off the corridor's side.
     observe_corridor: bool = False
+    # Add `ground_ahead` to the observation: for each distance d (m) in `ground_scan`, 1.0 if the
+    # corridor floor at the root's x + d (along the corridor) is a platform, 0.0 over a gap or past
+    # the corridor's end: a terrain sensor (a height scan of a flat-topped corridor) for a walker
+    # without a camera. Empty: none.
+    ground_scan: tuple[float, ...] = ()
     corridor: gaps.GapsParams = gaps.GapsParams()
 
     def validate(self) -> None:
@@ -81,6 +86,8 @@ class RunGapsConfig(WalkerTaskConfig):
                 "contact_termination reads MJX's contact list, which MuJoCo C physics does not return; "
                 "use impl: jax with contact_termination, or turn it off"
             )
+        if any(not np.isfinite(d) for d in self.ground_scan):
+            raise VnlError(f"ground_scan must be finite distances in metres, got {list(self.ground_scan)}")
         if not 0 <= self.spawn_x < c.start_length:
             raise VnlError(f"spawn_x must be in the gapless start region [0, {c.start_length}), got {self.spawn_x}")
 
@@ -158,7 +165,7 @@ class RunGaps(WalkerTask):
             "measure/gaps_crossed": zero,
         }
         info = {"rng": rng, "layout": layout, "max_x": jp.float32(cfg.spawn_x)}
-        return State(data, self._obs(data), zero, zero, metrics, info)
+        return State(data, self._obs(data, layout), zero, zero, metrics, info)
 
     def step(self, state: State, action: jax.Array) -> State:
         cfg: RunGapsConfig = self._config
@@ -188,7 +195,8 @@ class RunGaps(WalkerTask):
             "measure/gaps_crossed": crossed,
         }
         info = {**state.info, "max_x": new_max}
-        return state.replace(data=data, obs=self._obs(data), reward=reward, done=done, metrics=metrics, info=info)
+        obs = self._obs(data, layout)
+        return state.replace(data=data, obs=obs, reward=reward, done=done, metrics=metrics, info=info)
 
     def failed(self, data: mjx.Data) -> jax.Array:
         """1.0 if the episode fails: fell below `terminate_at_height` or (optionally) a non-foot
@@ -204,16 +212,23 @@ class RunGaps(WalkerTask):
             low = low | jp.any(bad & (c.dist < 0))
         return low.astype(jp.float32)
 
-    def _obs(self, data: mjx.Data) -> jax.Array:
-        """Proprioception (+ `corridor` with `observe_corridor`), shape (observation_size,)."""
-        if not self._config.observe_corridor:
-            return self.proprioception(data)
-        axis = data.xmat[self._root][0]  # world x in the root's frame: xmat's first row
-        offset = data.xpos[self._root, 1] / (0.5 * self._params.corridor_width)
-        return jp.concatenate([self.proprioception(data), axis, offset[None]]).astype(jp.float32)
+    def _obs(self, data: mjx.Data, layout: gaps.Layout) -> jax.Array:
+        """Proprioception (+ `corridor` with `observe_corridor`, + `ground_ahead` with
+        `ground_scan`), shape (observation_size,)."""
+        cfg: RunGapsConfig = self._config
+        parts = [self.proprioception(data)]
+        if cfg.observe_corridor:
+            parts.append(data.xmat[self._root][0])  # world x in the root's frame: xmat's first row
+            parts.append((data.xpos[self._root, 1] / (0.5 * self._params.corridor_width))[None])
+        if cfg.ground_scan:
+            points = data.xpos[self._root, 0] + jp.asarray(cfg.ground_scan, jp.float32)
+            parts.append(jax.vmap(lambda x: gaps.on_platform(layout, x))(points))
+        return jp.concatenate(parts).astype(jp.float32)
 
     def observation_layout(self) -> list[tuple[str, int]]:
-        extra = [("corridor", 4)] if self._config.observe_corridor else []
+        cfg: RunGapsConfig = self._config
+        extra = [("corridor", 4)] if cfg.observe_corridor else []
+        extra += [("ground_ahead", len(cfg.ground_scan))] if cfg.ground_scan else []
         return self.proprioception_layout() + extra
 
     @property
