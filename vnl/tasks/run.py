@@ -139,7 +139,7 @@ RODENT_RUN = RunConfig(
     healthy_reward=1.0,
     ctrl_cost_weight=0.01,
     healthy_z_range=(0.025, 0.5),
-    healthy_min_upright=0.0,
+    healthy_min_upright=0.5,
     reset_noise_scale=0.01,
 )
 """`rodent_run` defaults: dm_control's rat on a flat floor, 20 ms control steps, 10 s episodes.
@@ -150,6 +150,10 @@ alike); 2 iterations survive zero action but not random actions at 2 ms; 4 match
 100-iteration reference (torso height after 2 s of zero action 0.053 m vs 0.051 m).
 Rewards: a rat runs at most ~1 m/s, so forward velocity is weighted 5 against a healthy bonus
 of 1; 36 actuators make |a|² up to 36, so the control cost weight is 0.01.
+Healthy: the torso 2.5-50 cm high and tilted at most 60° (cos 0.5; talmolab's vnl-playground
+rodent tasks end episodes at the same tilt). With any tilt short of lying on its back counted
+healthy (0.0), an untrained policy lying on its side earned the whole healthy bonus (README,
+Does every task learn?).
 """
 
 
