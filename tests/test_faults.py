@@ -264,3 +264,65 @@ def test_a_pixel_env_s_observation_is_recorded_as_state_and_images():
     assert data["observation"][1].shape == (2, 5, 3)  # (episode, time, feature)
     dims, image = data["pixels_egocentric"]
     assert dims == ("episode", "time", "pixel_row", "pixel_column", "channel") and image.shape == (2, 5, 4, 4, 3)
+
+
+# --- permissions --------------------------------------------------------------------------------
+
+
+def test_permission_denied_is_one_error_line_naming_the_path(tmp_path, monkeypatch, capsys):
+    """Unreadable inputs and unwritable output directories end in one `vnl: error:` line before
+    anything is imported or compiled. The suite may run as root, which chmod cannot lock out, so
+    the denial is simulated where vnl asks the OS (os.access, open)."""
+    from vnl import cli
+
+    (tmp_path / "secret.yaml").write_text("ppo: {num_envs: 16}\n")
+    (tmp_path / "rec.nc").write_text("x")
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "config.yaml").write_text("env: ant_run\n")
+    (tmp_path / "run" / "metrics.jsonl").write_text('{"step": 0, "eval/episode_reward": 1.0}\n')
+    (tmp_path / "ro").mkdir()
+    locked = {str(tmp_path / "secret.yaml"), str(tmp_path / "rec.nc"), str(tmp_path / "ro")}
+    real_access, real_open = os.access, open
+
+    def access(path, mode, *args, **kwargs):
+        return False if str(path) in locked else real_access(path, mode, *args, **kwargs)
+
+    def denied_open(path, *args, **kwargs):
+        if str(path) in locked:
+            raise PermissionError(errno.EACCES, "Permission denied", str(path))
+        return real_open(path, *args, **kwargs)
+
+    monkeypatch.setattr(os, "access", access)
+    monkeypatch.setattr("builtins.open", denied_open)
+    cases = {
+        ("train", "ant_run", "--config", "secret.yaml"): "secret.yaml (permission denied)",
+        ("analyze", "rec.nc"): "rec.nc (permission denied)",
+        ("plot", "run", "--out", "ro/curve.png"): "cannot write to",
+    }
+    for argv, expected in cases.items():
+        argv = [str(tmp_path / a) if (tmp_path / a.split("/")[0]).exists() else a for a in argv]
+        assert cli.main(argv) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("vnl: error:") and expected in err[0], err
+    monkeypatch.setattr(os, "access", real_access)  # readable per os.access, refused by open
+    with pytest.raises(VnlError, match="cannot read config file .*Permission denied"):
+        config_lib.load_yaml(str(tmp_path / "secret.yaml"))
+
+
+def test_plot_draws_a_diverged_run_whose_metrics_are_null(tmp_path, capsys):
+    """A run whose evaluations went NaN (written as null) still plots: the finite points are
+    drawn and the command succeeds."""
+    from vnl import cli
+
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.yaml").write_text("env: ant_run\n")
+    rows = [{"step": 0, "eval/episode_reward": 1.0}, {"step": 10, "eval/episode_reward": 3.0}]
+    rows += [{"step": 20, "eval/episode_reward": float("nan")}, {"step": 30, "eval/episode_reward": float("inf")}]
+    writer = metrics_io.JsonlWriter(run / "metrics.jsonl")
+    for r in rows:
+        writer.write(r)
+    writer.close()
+    out = tmp_path / "curve.png"
+    assert cli.main(["plot", str(run), "--out", str(out)]) == 0, capsys.readouterr().err
+    assert out.stat().st_size > 1000 and "Traceback" not in capsys.readouterr().err
