@@ -326,3 +326,21 @@ def test_plot_draws_a_diverged_run_whose_metrics_are_null(tmp_path, capsys):
     out = tmp_path / "curve.png"
     assert cli.main(["plot", str(run), "--out", str(out)]) == 0, capsys.readouterr().err
     assert out.stat().st_size > 1000 and "Traceback" not in capsys.readouterr().err
+
+
+def test_resuming_with_a_malformed_metrics_line_stops_and_leaves_the_file_as_it_was(tmp_path):
+    """`--resume` keeps metrics.jsonl up to the restored step; a malformed line in the middle is
+    a `VnlError` naming it, and the file is neither rewritten (losing lines) nor backed up."""
+    from vnl.train import rundir
+
+    lines = [json.dumps({"step": 0, "wall_time": 1.0}), "not json", json.dumps({"step": 20, "wall_time": 3.0})]
+    path = tmp_path / "metrics.jsonl"
+    path.write_text("\n".join(lines) + "\n")
+    before = path.read_bytes()
+    with pytest.raises(VnlError, match="line 2"):
+        rundir.truncate_metrics(tmp_path, 10, {"step": 10, "wall_time": 2.0}, print)
+    assert path.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == ["metrics.jsonl"]
+    path.write_text("\n".join(lines[::2]) + "\n")  # well formed: truncated at step 10, the rest backed up
+    assert rundir.truncate_metrics(tmp_path, 10, {"step": 10, "wall_time": 2.0}, print) == 2.0
+    assert [r["step"] for r in metrics_io.read(path)] == [0, 10]
+    assert len(list(tmp_path.glob("metrics.jsonl.*.bak"))) == 1

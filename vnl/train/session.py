@@ -130,10 +130,11 @@ class Session:
         if restored:
             with self.stop.critical():
                 checkpoint.tidy(self.run_dir)
-                rundir.set_aside_later_checkpoints(self.run_dir, restored.step, self.say)
+                # Metrics first: a malformed metrics.jsonl stops the resume with the run untouched.
                 self.wall_offset = rundir.truncate_metrics(
                     self.run_dir, restored.step, restored.meta.get("record"), self.say
                 )
+                rundir.set_aside_later_checkpoints(self.run_dir, restored.step, self.say)
         wandb_id = restored.meta.get("wandb_id") if restored else None
         self.tracker = tracking.Tracker(
             self.run_dir, config.log, config_lib.to_dict(config), self.say, wandb_id=wandb_id
