@@ -371,6 +371,50 @@ def test_an_error_on_process_0_stops_every_process(tmp_path):
     assert "process 0 stopped with an error" in outs[1][1], outs[1][1][-2000:]
 
 
+ONE_SIGNALLED = textwrap.dedent(
+    """
+    import json, os, signal, sys
+    sys.path.insert(0, {tests!r})
+    import tiny_env; tiny_env.register()
+    import jax
+    from vnl.cli import main
+    from vnl.train import distributed
+
+    real, agreed = distributed.any_process, []
+
+    def spy(flag):  # the stop vote at the end of each epoch
+        if jax.process_index() == 1 and len(agreed) == 1:
+            os.kill(os.getpid(), signal.SIGTERM)  # during epoch 1's vote: this process alone is signalled
+        agreed.append(real(flag))
+        return agreed[-1]
+
+    distributed.any_process = spy
+    port, pid = sys.argv[1:]
+    join = ["--coordinator", "127.0.0.1:" + port, "--num-processes", "2", "--process-id", pid]
+    rc = main([
+        "train", "test_point", "--preset", "tiny", "--no-video", "--out", {run!r}, "--set", "env_config.impl=c",
+        "--set", "ppo.num_timesteps=8192", "--set", "ppo.num_evals=5", *join,
+    ])
+    print("RESULT" + json.dumps({{"rc": rc, "agreed": agreed}}), flush=True)
+    """
+)
+
+
+def test_a_signal_to_one_process_stops_every_process_at_the_same_epoch(tmp_path):
+    """SLURM (or a user) may signal one process of a multi-process run: every process stops at
+    the end of the same epoch, the checkpoint of that step is written, and the run resumes."""
+    run = tmp_path / "run"
+    codes, outs = _launch_two(ONE_SIGNALLED.format(tests=str(ROOT / "tests"), run=str(run)))
+    assert codes == [0, 0], [o[1][-2000:] for o in outs]
+    results = [json.loads(stdout.split("RESULT")[-1]) for stdout, _ in outs]
+    # Votes: before epoch 1, after epoch 1 (process 1 is signalled during it), after epoch 2: stop.
+    assert [r["agreed"] for r in results] == [[False, False, True]] * 2
+    assert [r["rc"] for r in results] == [130, 130]  # `vnl train`'s exit code for an interrupted run
+    assert "stopped at step 4,096" in outs[0][0]
+    assert checkpoint.steps(run)[-1] == 4096
+    assert [r["step"] for r in metrics_io.read(run / "metrics.jsonl")] == [0, 2048, 4096]
+
+
 def test_multi_process_flags_are_checked_before_joining():
     from vnl.train import distributed
 
