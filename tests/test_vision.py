@@ -350,7 +350,9 @@ def test_vision_run_trains_resumes_evaluates_and_renders_what_the_policy_sees(tm
     assert result.steps == 4096
     assert [r["step"] for r in metrics_io.read(out / "metrics.jsonl")] == [0, 2048, 4096]
     # The policy reads the pixels: the same state with a blank image gives another action.
-    run = vnl.policy.load_run(out)
+    from vnl import policy  # imported here: alone, `vnl.policy` is not yet an attribute of vnl
+
+    run = policy.load_run(out)
     s = jax.jit(run.env.reset)(jax.random.PRNGKey(3))
     obs = jax.tree.map(lambda x: x[None], s.obs)
     blank = {**obs, "pixels/egocentric": jp.zeros_like(obs["pixels/egocentric"])}
@@ -367,6 +369,18 @@ def test_vision_run_trains_resumes_evaluates_and_renders_what_the_policy_sees(tm
     assert frames.shape[1:] == (48, 64 + 48, 3)
     policy_view = frames[0, :, 64:].astype(int)
     assert (np.abs(np.diff(policy_view, axis=1)).sum(-1) > 60).any()  # the target's edge, not a blank panel
+    # record: the images the policy saw, per step, next to its layers (it assumed a flat observation).
+    import xarray as xr
+
+    rec = tmp_path / "rec.nc"
+    cmd = ["record", str(out), "--episodes", "1", "--steps", "6", "--out", str(rec)]
+    p = subprocess.run([*vnl_cmd, *cmd], capture_output=True, text=True, cwd=root)
+    assert p.returncode == 0, p.stdout + p.stderr
+    with xr.open_dataset(rec, engine="h5netcdf") as ds:
+        images = ds["pixels_egocentric"].values
+        assert images.shape[0] == 1 and images.shape[2:] == (16, 16, 3) and images.shape[1] >= 6
+        assert images.std() > 0 and ds["observation"].shape[:2] == images.shape[:2]
+        assert any(name.startswith("policy_hidden") for name in ds.data_vars)
 
 
 def test_im2col_convolution_equals_xlas_and_leaves_brax_networks_unchanged():
