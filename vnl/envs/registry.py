@@ -26,6 +26,12 @@ class Entry:
         object.__setattr__(self, "presets", config_lib.freeze(self.presets))
 
 
+def _c_on_cpu(cpu: dict[str, Any] | None = None, **others: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """Presets whose `cpu` preset runs MuJoCo C physics (`env_config.impl: c`, see README: Physics
+    on a CPU) with the settings in `cpu`; `others` (e.g. `gpu`) as given."""
+    return {"cpu": config_lib.merge({"env_config": {"impl": "c"}}, cpu or {}), **others}
+
+
 # The rat steps ~10x slower than the ant (43 joints, 10 physics steps of 2 ms per control step).
 # On a CPU it runs on MuJoCo C (impl c: 10x MJX's speed there, README); on a GPU on MJX.
 # cpu: what trains on a 2-core CPU in about 40 minutes (~2,100 env steps/s: 5M steps) with the
@@ -34,9 +40,8 @@ class Entry:
 # 38,254 between successive policies and collapsed; Brax's 4x32 policy with entropy 1e-2 stayed
 # upright 80% of the time. Measured with this preset: rodent_run upright the whole episode from
 # 0.5M steps, but no forward gait in 5M (README, Does every task learn?).
-_RODENT_PRESETS = {
-    "cpu": {
-        "env_config": {"impl": "c"},
+_RODENT_PRESETS = _c_on_cpu(
+    {
         "ppo": {
             "num_timesteps": 5_000_000,
             "num_envs": 256,
@@ -54,21 +59,20 @@ _RODENT_PRESETS = {
         "network": {"policy_hidden_layer_sizes": [256, 256]},
         "log": {"video_seconds": 4.0},
     },
-    "gpu": {"ppo": {"num_envs": 2048}},  # the seed notebooks' rodent setting (README: CLI, presets)
-}
+    gpu={"ppo": {"num_envs": 2048}},  # the seed notebooks' rodent setting (README: CLI, presets)
+)
 
 # The ant and the humanoid on a CPU: MuJoCo C physics (ant_run trains 1.7x faster than on MJX
 # there; env steps 2.1x (humanoid) to 13x (ant in the bowl) MJX's: README, Physics on a CPU); the
 # other settings are the defaults (the main job).
-_C_ON_CPU = {"cpu": {"env_config": {"impl": "c"}}}
+_C_ON_CPU = _c_on_cpu()
 
 # humanoid_run on a CPU: Brax's humanoid PPO settings (reward scaling 0.1, entropy 1e-3) at the
 # ant's batch for 15M steps, about 43 minutes here (~6,100 env steps/s). Measured: it learns to
 # stay on its feet (870 of 1,000 steps, torso leaning) but not to run (0.04 m/s; README, Does
 # every task learn?); the healthy bonus (5 per step) outweighs walking (1.25 x v).
-_HUMANOID_PRESETS = {
-    "cpu": {
-        "env_config": {"impl": "c"},
+_HUMANOID_PRESETS = _c_on_cpu(
+    {
         "ppo": {
             "num_timesteps": 15_000_000,
             "reward_scaling": 0.1,
@@ -76,8 +80,8 @@ _HUMANOID_PRESETS = {
             "num_evals": 16,
             "num_eval_envs": 32,
         },
-    },
-}
+    }
+)
 
 # ant_run_gaps on a CPU: the blind ant walking slowly steps into the first gaps (5M steps of the
 # default preset: 1.3 gaps crossed, 5.0 m; README, Results). It first learns to run in the same
@@ -85,21 +89,20 @@ _HUMANOID_PRESETS = {
 # overrides, so `--set env_config.corridor...` still sets the task it ends on). Measured: 1.6-2.0
 # gaps crossed (2 seeds, 15 min); the blind ant cannot see the gaps, and a ground scan of 21 points
 # (env_config.ground_scan) did no better (1.3 gaps, seed 0).
-_ANT_GAPS_PRESETS = {
-    "cpu": {
-        "env_config": {"impl": "c"},
+_ANT_GAPS_PRESETS = _c_on_cpu(
+    {
         "ppo": {"num_evals": 13},
         "curriculum": [
             {"name": "no_gaps", "steps": 1_500_000, "env_config": {"corridor": {"gap_length": [0.0, 0.0]}}},
             {"name": "short_gaps", "steps": 1_500_000, "env_config": {"corridor": {"gap_length": [0.125, 0.25]}}},
             {"name": "gaps", "steps": 3_000_000},
         ],
-    },
-}
+    }
+)
 
 # ant_escape_bowl on a CPU: the defaults (the main job's PPO settings) for 4M steps, about 10
 # minutes here (README, Results).
-_ANT_BOWL_PRESETS = {"cpu": {"env_config": {"impl": "c"}, "ppo": {"num_timesteps": 4_000_000, "num_evals": 9}}}
+_ANT_BOWL_PRESETS = _c_on_cpu({"ppo": {"num_timesteps": 4_000_000, "num_evals": 9}})
 
 # find_target trains from pixels on a CPU: 32x32 images, a small CNN whose spatial softmax keeps
 # where the target is (README, Vision). Blind (no --vision), the same preset is the baseline.
