@@ -141,7 +141,8 @@ def platform_index(layout: Layout, x: jax.Array) -> jax.Array:
 
 
 def on_platform(layout: Layout, x: jax.Array) -> jax.Array:
-    """Whether x lies over a platform (not over a gap or past the corridor's end)."""
+    """Whether x (a scalar or any shape of points) lies over a platform (not over a gap or past
+    the corridor's end); same shape as x."""
     i = platform_index(layout, x)
     return (x >= layout.start[i]) & (x <= layout.start[i] + layout.length[i])
 

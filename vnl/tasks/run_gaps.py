@@ -222,7 +222,7 @@ class RunGaps(WalkerTask):
             parts.append((data.xpos[self._root, 1] / (0.5 * self._params.corridor_width))[None])
         if cfg.ground_scan:
             points = data.xpos[self._root, 0] + jp.asarray(cfg.ground_scan, jp.float32)
-            parts.append(jax.vmap(lambda x: gaps.on_platform(layout, x))(points))
+            parts.append(gaps.on_platform(layout, points))
         return jp.concatenate(parts).astype(jp.float32)
 
     def observation_layout(self) -> list[tuple[str, int]]:
