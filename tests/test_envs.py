@@ -513,9 +513,9 @@ def test_ground_scan_reads_platforms_and_gaps_ahead_from_the_episodes_layout():
     scan = tuple(float(d) for d in np.arange(0.0, 30.0, 0.05)) + (200.0,)
     env = vnl.make("ant_run_gaps", impl="c", ground_scan=scan)
     assert env.observation_layout()[-2:] == [("corridor", 4), ("ground_ahead", len(scan))]
-    state = jax.jit(env.reset)(jax.random.PRNGKey(3))
-    intervals = gaps.layout_numpy(state.info["layout"])
-    for state in (state, jax.jit(env.step)(state, jp.zeros(env.action_size))):
+    first = jax.jit(env.reset)(jax.random.PRNGKey(3))
+    intervals = gaps.layout_numpy(first.info["layout"])
+    for state in (first, jax.jit(env.step)(first, jp.zeros(env.action_size))):
         x = float(state.data.xpos[env._root, 0]) + np.asarray(scan, np.float32)
         expected = [any(a <= p <= b for a, b in intervals) for p in x]
         got = np.asarray(state.obs[-len(scan) :])
