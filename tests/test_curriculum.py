@@ -140,6 +140,10 @@ def test_warm_start_errors_are_one_line_before_anything_is_written(parent, tmp_p
     assert main(["train", "--resume", str(parent), "--init-from", str(parent)]) == 2
     assert "use one of them" in capsys.readouterr().err
     assert not out.exists()
+    # Given right, it trains, and the summary calls step 0 the warm start, not untrained.
+    assert main(warm) == 0
+    said = capsys.readouterr().out
+    assert "(warm start) -> " in said and "(untrained)" not in said
 
 
 def test_lineage_plot_draws_the_parent_then_the_child(parent, child, tmp_path):

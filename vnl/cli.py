@@ -190,8 +190,9 @@ def _summarize_run(out: Path, config: Any, wall_time: float) -> None:
     plot.learning_curve(records, out / "learning_curve.png", title=f"{config.env} ({config.preset})")
     first, last = records[0], records[-1]
     vx = last.get("eval/mean_forward_velocity")
+    start = "warm start" if config.init.run else "untrained"  # --init-from: the parent's policy
     _say(
-        f"[vnl] eval reward {first.get('eval/episode_reward', float('nan')):.1f} (untrained) -> "
+        f"[vnl] eval reward {first.get('eval/episode_reward', float('nan')):.1f} ({start}) -> "
         f"{last.get('eval/episode_reward', float('nan')):.1f} at step {last['step']:,}"
         + (f"; mean forward velocity {vx:.2f} m/s" if vx is not None else "")
         + f"; {wall_time / 60:.1f} min"
