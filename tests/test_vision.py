@@ -173,7 +173,7 @@ def corridor_episode(env, key: int, forward: float = 0.0) -> mujoco.MjData:
     x = cfg.spawn_x + forward
     layout = gaps_arena.sample_layout(jax.random.PRNGKey(key), cfg.corridor)
     d = mujoco.MjData(env.mj_model)
-    d.mocap_pos[:] = np.asarray(gaps_arena.place_window(layout, jp.float32(cfg.spawn_x), cfg.corridor))
+    d.mocap_pos[:] = np.asarray(gaps_arena.place_window(layout, jp.float32(x), cfg.corridor))
     d.qpos[:3] = x, 0.0, spawn_height(env.mj_model, x, 0.0, mocap_pos=d.mocap_pos)
     mujoco.mj_forward(env.mj_model, d)
     return d
@@ -188,6 +188,35 @@ def test_ant_egocentric_camera_sees_the_corridor_it_is_in():
     # Another episode's layout gives another image; so does moving the walker forward.
     assert not np.array_equal(render(mjx.put_data(env.mj_model, d1))[2], geom0)
     assert (np.asarray(render(mjx.put_data(env.mj_model, ahead))[1]) != np.asarray(depth0)).mean() > 0.05
+
+
+def test_ant_ground_camera_sees_the_gap_ahead_where_it_is():
+    # The camera pitched down at the floor ahead (`walker/ground`, vision for the gaps): in its
+    # centre column, exactly the rows whose ray meets the platforms' top (z = 0) inside the first
+    # wide gap ahead see past it; MuJoCo's renderer sees the same image.
+    env, _, _ = gaps()
+    cfg = env.config
+    layout = gaps_arena.sample_layout(jax.random.PRNGKey(0), cfg.corridor)
+    start, end = np.asarray(layout.start), np.asarray(layout.start + layout.length)
+    i = next(i for i in range(len(start) - 1) if end[i] > cfg.spawn_x + 1.5 and start[i + 1] - end[i] > 0.3)
+    gap = end[i], start[i + 1]
+    d = corridor_episode(env, 0, forward=gap[0] - 1.25 - cfg.spawn_x)  # the camera 1 m before the gap
+    size, cam_id = 32, env.mj_model.camera("walker/ground").id
+    _, depth, geom = jax.jit(Camera(env.mj_model, "walker/ground", size, size).render)(mjx.put_data(env.mj_model, d))
+    assert_matches(depth, geom, *reference(env.mj_model, d, "walker/ground", size, size), 0.95)
+    # The centre column's rays (MuJoCo: pixel centres, -z forward, +y up) meet z = 0 at x_hit,
+    # at a depth t along the viewing axis.
+    half = np.tan(np.deg2rad(env.mj_model.cam_fovy[cam_id]) / 2)
+    y = (1 - 2 * (np.arange(size) + 0.5) / size) * half
+    rays = d.cam_xmat[cam_id].reshape(3, 3) @ np.stack([np.zeros(size), y, -np.ones(size)])
+    t = -d.cam_xpos[cam_id][2] / rays[2]
+    x_hit = d.cam_xpos[cam_id][0] + t * rays[0]
+    in_gap = (x_hit > gap[0] + 0.03) & (x_hit < gap[1] - 0.03)
+    on_platform = ((x_hit < gap[0] - 0.03) | (x_hit > gap[1] + 0.03)) & (t < 4.0)
+    column = np.asarray(depth)[:, size // 2]
+    assert in_gap.sum() >= 2 and on_platform.sum() >= 10, (in_gap.sum(), on_platform.sum())
+    assert (column[in_gap] > t[in_gap] + 0.05).all()
+    np.testing.assert_allclose(column[on_platform], t[on_platform], rtol=1e-3)
 
 
 HFIELD_SCENE = """

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import numpy as np
 from dm_control import mjcf
 
 
@@ -58,6 +59,20 @@ def add_tracking_cameras(body: mjcf.Element, distance: float, height: float) -> 
         pos=[-distance, 0, height],
         xyaxes=[0, -1, 0, height, 0, distance],
     )
+
+
+def add_ground_camera(body: mjcf.Element, pos: tuple[float, float, float], pitch_deg: float, fovy: float) -> None:
+    """Adds an egocentric `ground` camera to `body` that looks forward and `pitch_deg` down.
+
+    A walker's own `egocentric` camera looks at the horizon, where a gap a few metres ahead is a
+    line one pixel high in a 32x32 image; pitched down, the same image spends its rows on the
+    floor ahead (vision for the gaps corridor: `--set vision.camera=walker/ground`).
+    """
+    pitch = np.deg2rad(pitch_deg)
+    # image x = the body's right (-y); image up = perpendicular to the view direction
+    # (cos p, 0, -sin p), so the camera's -z looks forward and down.
+    up = [float(np.sin(pitch)), 0.0, float(np.cos(pitch))]
+    body.add("camera", name="ground", pos=list(pos), xyaxes=[0, -1, 0, *up], fovy=fovy)
 
 
 def collide_with_arena_only(model: mjcf.RootElement) -> None:
