@@ -372,3 +372,25 @@ def test_plot_compares_runs_with_a_seed_band(reference, resumed, tmp_path, capsy
     assert main(["plot", str(tmp_path / "missing")]) == 2
     assert "run directory not found" in capsys.readouterr().err
     assert os.path.exists(out)
+
+
+def test_plot_labels_same_named_runs_by_their_parent_folders(reference, tmp_path, monkeypatch):
+    # Two runs called ant_run-s0 in different folders get different legend entries; a symlink
+    # keeps its own name.
+    from matplotlib.figure import Figure
+
+    ref, _ = reference
+    a, b = tmp_path / "scratch" / "ant_run-s0", tmp_path / "warm" / "ant_run-s0"
+    for d in (a, b):
+        shutil.copytree(ref, d)
+    (b / "config.yaml").write_text((b / "config.yaml").read_text() + "note: warm\n")  # another group
+    link = tmp_path / "vision"
+    link.symlink_to(a)
+    assert plot.run_labels([a, b, link]) == {a: "scratch/ant_run-s0", b: "warm/ant_run-s0", link: "vision"}
+    figures = []
+    monkeypatch.setattr(Figure, "savefig", lambda self, *args, **kwargs: figures.append(self))
+    plot.compare_runs([a, b], "reward", tmp_path / "x.png")
+    assert [t.get_text() for t in figures[0].axes[0].get_legend().get_texts()] == [
+        "scratch/ant_run-s0",
+        "warm/ant_run-s0",
+    ]

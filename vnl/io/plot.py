@@ -98,6 +98,23 @@ def group_key(run_dir: Path) -> str:
     return yaml.safe_dump(cfg, sort_keys=True)
 
 
+def run_labels(run_dirs: list[Path]) -> dict[Path, str]:
+    """Each run's legend label: its directory name, with as many parent folders as it takes to
+    tell apart runs of the same name (`a/ant_run-s0`, `b/ant_run-s0`). Symlinks are not resolved,
+    so a link's own name is its label."""
+    import os
+
+    parts = {d: Path(os.path.abspath(d)).parts for d in run_dirs}
+    labels = {}
+    for d in run_dirs:
+        for k in range(1, len(parts[d]) + 1):
+            label = "/".join(parts[d][-k:])
+            if all(parts[o] == parts[d] or "/".join(parts[o][-k:]) != label for o in run_dirs):
+                break
+        labels[d] = label
+    return labels
+
+
 def _read_records(run_dir: Path) -> list[dict[str, Any]]:
     from vnl.errors import VnlError
     from vnl.io import metrics as metrics_io
@@ -134,11 +151,12 @@ def compare_runs(run_dirs: list[str | Path], metric: str, out: str | Path, linea
     key = resolve_metric(metric, available)
     fig = Figure(figsize=(7, 4.2))
     ax = fig.subplots()
+    labels = run_labels([d for d, _ in runs])
     if lineage:
         for i, (d, recs) in enumerate(runs):
-            _draw_lineage(ax, d, recs, key, f"C{i}")
+            _draw_lineage(ax, d, recs, key, f"C{i}", labels[d])
     else:
-        _draw_groups(ax, runs, key)
+        _draw_groups(ax, runs, key, labels)
     ax.set_xlabel("environment steps" + (" (from the first ancestor's start)" if lineage else ""))
     ax.set_ylabel(key)
     ax.grid(alpha=0.3)
@@ -148,7 +166,7 @@ def compare_runs(run_dirs: list[str | Path], metric: str, out: str | Path, linea
     return Path(out)
 
 
-def _draw_groups(ax: Any, runs: list[tuple[Path, list[dict[str, Any]]]], key: str) -> None:
+def _draw_groups(ax: Any, runs: list[tuple[Path, list[dict[str, Any]]]], key: str, labels: dict[Path, str]) -> None:
     import numpy as np
 
     groups: dict[str, list[tuple[Path, list[dict[str, Any]]]]] = {}
@@ -158,7 +176,7 @@ def _draw_groups(ax: Any, runs: list[tuple[Path, list[dict[str, Any]]]], key: st
         curves = [c for c in (_curve(recs, key) for _, recs in members) if len(c[0])]
         if not curves:
             continue
-        names = ", ".join(d.name for d, _ in members)
+        names = ", ".join(labels[d] for d, _ in members)
         if len(curves) == 1:
             ax.plot(*curves[0], marker="o", ms=3, color=f"C{i}", label=names)
             stage_lines(ax, members[0][1])
@@ -169,7 +187,7 @@ def _draw_groups(ax: Any, runs: list[tuple[Path, list[dict[str, Any]]]], key: st
         ax.fill_between(grid, values.min(0), values.max(0), color=f"C{i}", alpha=0.2)
 
 
-def _draw_lineage(ax: Any, run_dir: Path, records: list[dict[str, Any]], key: str, color: str) -> None:
+def _draw_lineage(ax: Any, run_dir: Path, records: list[dict[str, Any]], key: str, color: str, label: str) -> None:
     """The ancestors' curves (dashed, each up to its child's starting step), then the run's."""
     offset = 0.0
     for ancestor, step in lineage(run_dir)[:-1]:
@@ -177,5 +195,5 @@ def _draw_lineage(ax: Any, run_dir: Path, records: list[dict[str, Any]], key: st
         ax.plot(steps, values, ls="--", marker="o", ms=2, color=color, alpha=0.6, label=f"{ancestor.name} (parent)")
         offset += step or 0
         ax.axvline(offset, color=color, ls=":", lw=1)
-    ax.plot(*_curve(records, key, offset), marker="o", ms=3, color=color, label=run_dir.name)
+    ax.plot(*_curve(records, key, offset), marker="o", ms=3, color=color, label=label)
     stage_lines(ax, records, offset)
