@@ -7,7 +7,13 @@ The ratio vision/blind is the cost of seeing: rendering every env's image every 
 CNN's forward and backward passes.
 
     MUJOCO_GL=egl .venv/bin/python benchmarks/vision_ppo_throughput.py [--envs find_target ...]
-        [--size N] [--epochs 2] [--steps-per-epoch 2]
+        [--size N] [--set KEY=VALUE ...] [--epochs 2] [--steps-per-epoch 2]
+
+`--set` takes `vnl train --set` assignments (both variants; `vision.*` and `network.cnn_*` only
+matter with vision), e.g. for the ant in the gaps corridor, seeing the floor ahead in depth:
+
+    --envs ant_run_gaps --size 32 --set vision.camera=walker/ground vision.mode=depth \
+        'network.cnn_channels=[8, 16]'
 """
 
 from __future__ import annotations
@@ -40,14 +46,15 @@ def main() -> None:
     # ant_run_gaps with vision (64x64, NatureCNN, 256 envs) takes more than 30 minutes on 2 CPU cores.
     parser.add_argument("--envs", nargs="+", default=["find_target"])
     parser.add_argument("--size", type=int, help="image width and height (default: the preset's)")
+    parser.add_argument("--set", nargs="*", default=[], dest="assignments", metavar="KEY=VALUE")
     parser.add_argument("--epochs", type=int, default=2)
     parser.add_argument("--steps-per-epoch", type=int, default=2)
     args = parser.parse_args()
     rows = []
     for env in args.envs:
-        blind = train_config.build(env, "cpu")
+        blind = train_config.build(env, "cpu", assignments=args.assignments)
         vision = {"enabled": True, **({"width": args.size, "height": args.size} if args.size else {})}
-        seeing = train_config.build(env, "cpu", flags={"vision": vision})
+        seeing = train_config.build(env, "cpu", assignments=args.assignments, flags={"vision": vision})
         b = steps_per_second(blind, args.epochs, args.steps_per_epoch)
         v = steps_per_second(seeing, args.epochs, args.steps_per_epoch)
         rows.append((env, seeing, b, v))
