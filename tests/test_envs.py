@@ -1,5 +1,6 @@
 """Every registered env: jit+vmap reset/step, shapes, no NaN; reward terms recomputed; NaN guard."""
 
+import copy
 import functools
 
 import jax
@@ -7,6 +8,7 @@ import jax.numpy as jp
 import mujoco
 import numpy as np
 import pytest
+from mujoco import mjx
 
 import vnl
 from vnl import physics
@@ -370,6 +372,45 @@ def test_walker_falling_into_a_gap_is_detected():
         mujoco.mj_step(m, d)
     assert d.xpos[e.root_body_id, 2] < -0.3
     assert float(e.failed(mjx.put_data(m, d))) == 1.0
+
+
+def test_ant_wedged_in_a_gap_fails_with_terminate_root_below():
+    """The ant's torso (a sphere of radius 0.25 m) over a 0.45-m gap wedges between the platforms'
+    edges with its centre below 0.2 m, where its feet stay above `terminate_at_height`: a failure
+    with ant_run_gaps's `terminate_root_below`, none without. On a platform it rests at 0.25 m and
+    does not fail. (MuJoCo C, 1.5 s; only the torso collides, as when its legs flail in the air.)"""
+    results = {}
+    for below in (0.2, None):
+        e = vnl.make("ant_run_gaps", terminate_root_below=below)
+        m, p = copy.deepcopy(e.mj_model), e.corridor
+        legs = [
+            g for g in range(m.ngeom) if m.geom(g).name.startswith("walker/") and m.geom(g).name != "walker/torso_geom"
+        ]
+        m.geom_contype[legs] = m.geom_conaffinity[legs] = 0
+        start = np.full(p.max_platforms, np.inf, np.float32)
+        length = np.full(p.max_platforms, 2.0, np.float32)
+        start[:4], length[0] = [0.0, 15.0, 17.45, 19.9], 15.0  # gaps of 0.45 m after 17 and 19.45 m
+        layout = gaps.Layout(start=jp.asarray(start), length=jp.asarray(length))
+        for where, x in (("gap", 17.225), ("platform", 16.0)):
+            d = mujoco.MjData(m)
+            d.qpos[:] = m.qpos0
+            d.qpos[0] = x
+            d.mocap_pos[:] = np.asarray(gaps.place_window(layout, jp.float32(x), p))
+            for _ in range(int(1.5 / m.opt.timestep)):
+                mujoco.mj_step(m, d)
+            feet = d.xpos[e._low_bodies, 2].min()
+            results[below, where] = float(e.failed(mjx.put_data(m, d))), float(d.xpos[e.root_body_id, 2]), feet
+    z = {where: torso for (_, where), (_, torso, _) in results.items()}
+    assert z["gap"] < 0.2 and 0.24 < z["platform"] < 0.26, results
+    assert min(feet for _, _, feet in results.values()) > e.config.terminate_at_height, results
+    assert {k: f for k, (f, _, _) in results.items()} == {
+        (0.2, "gap"): 1.0,
+        (0.2, "platform"): 0.0,
+        (None, "gap"): 0.0,
+        (None, "platform"): 0.0,
+    }, results
+    with pytest.raises(VnlError, match="terminate_root_below"):
+        vnl.make("ant_run_gaps", terminate_root_below=float("nan"))
 
 
 @pytest.mark.xdist_group("user_walker")

@@ -8,7 +8,8 @@ Reward (one term, `metrics["reward/velocity"]`):
              subtree centre of mass (MuJoCo's `subtree_linvel[root]`), v* = `target_velocity`.
 
 The episode fails (done) when an end effector (or, for walkers without any, the root body)
-drops below `terminate_at_height` (a fall into a gap or off the corridor), when a non-foot geom
+drops below `terminate_at_height` (a fall into a gap or off the corridor), when the root body
+drops below `terminate_root_below` (if set: the ant's torso wedged in a gap), when a non-foot geom
 touches a platform and `contact_termination` is on, or when the physics blows up. Every
 `reset(rng)` draws a new platform/gap layout (`vnl.arenas.gaps`), different in every vmapped
 environment, without recompiling.
@@ -49,6 +50,11 @@ class RunGapsConfig(WalkerTaskConfig):
     target_velocity: float = 1.0
     spawn_x: float = 5.0
     terminate_at_height: float = -0.3
+    # The episode also fails when the root body's centre drops below this height (m; None: never).
+    # The ant's torso, a sphere of radius 0.25 m, wedges into a gap of 0.3 m or more with its
+    # centre below 0.2 m and its feet on the platforms, above `terminate_at_height`; without this
+    # it flailed there for the rest of the episode (frames: README, Results).
+    terminate_root_below: float | None = None
     contact_termination: bool = False
     # Add `corridor` to the observation: the corridor's axis (world x) in the root body's frame and
     # the root's sideways offset from the corridor's centre line in half-widths (4 numbers). A blind
@@ -86,6 +92,8 @@ class RunGapsConfig(WalkerTaskConfig):
                 "contact_termination reads MJX's contact list, which MuJoCo C physics does not return; "
                 "use impl: jax with contact_termination, or turn it off"
             )
+        if self.terminate_root_below is not None and not np.isfinite(self.terminate_root_below):
+            raise VnlError(f"terminate_root_below must be a height in metres or null, got {self.terminate_root_below}")
         if any(not np.isfinite(d) for d in self.ground_scan):
             raise VnlError(f"ground_scan must be finite distances in metres, got {list(self.ground_scan)}")
         if not 0 <= self.spawn_x < c.start_length:
@@ -203,6 +211,8 @@ class RunGaps(WalkerTask):
         geom touches a platform."""
         cfg: RunGapsConfig = self._config
         low = jp.any(data.xpos[self._low_bodies, 2] < cfg.terminate_at_height)
+        if cfg.terminate_root_below is not None:
+            low = low | (data.xpos[self._root, 2] < cfg.terminate_root_below)
         if cfg.contact_termination and len(self._nonfoot) and data.contact.geom1.shape[0]:
             c = data.contact
             g1, g2 = c.geom1, c.geom2
