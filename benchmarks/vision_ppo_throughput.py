@@ -10,10 +10,9 @@ CNN's forward and backward passes.
         [--size N] [--set KEY=VALUE ...] [--epochs 2] [--steps-per-epoch 2]
 
 `--set` takes `vnl train --set` assignments (both variants; `vision.*` and `network.cnn_*` only
-matter with vision), e.g. for the ant in the gaps corridor, seeing the floor ahead in depth:
-
-    --envs ant_run_gaps --size 32 --set vision.camera=walker/ground vision.mode=depth \
-        'network.cnn_channels=[8, 16]'
+matter with vision), e.g. `--set vision.mode=rgb`. ant_run_gaps's `cpu` preset sees a 16x16 depth
+image of the floor ahead (`--size 32` for 32x32); with the default 64x64 RGB NatureCNN
+(`--set vision.camera=walker/egocentric vision.mode=rgb ...`) it did not finish in 30 minutes.
 """
 
 from __future__ import annotations
@@ -43,7 +42,6 @@ def steps_per_second(config: train_config.TrainConfig, epochs: int, steps_per_ep
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    # ant_run_gaps with vision (64x64, NatureCNN, 256 envs) takes more than 30 minutes on 2 CPU cores.
     parser.add_argument("--envs", nargs="+", default=["find_target"])
     parser.add_argument("--size", type=int, help="image width and height (default: the preset's)")
     parser.add_argument("--set", nargs="*", default=[], dest="assignments", metavar="KEY=VALUE")

@@ -236,6 +236,16 @@ def test_an_env_preset_may_be_a_curriculum_whose_last_stage_is_the_users_task():
     assert train_config.build("ant_run_gaps", "cpu", assignments=["curriculum=[]"]).curriculum == ()
 
 
+def test_ant_gaps_cpu_preset_sees_a_small_depth_image_of_the_floor_only_with_vision():
+    """With --vision, ant_run_gaps' cpu preset renders 16x16 depth from the ant's ground camera
+    (affordable on a CPU, README: Vision); blind, the same preset has no pixels."""
+    seeing = train_config.build("ant_run_gaps", "cpu", flags={"vision": {"enabled": True}})
+    seeing.validate()
+    sizes = seeing.make_env().observation_size
+    assert {k: v for k, v in sizes.items() if k.startswith("pixels/")} == {"pixels/ground": (16, 16, 1)}
+    assert not isinstance(train_config.build("ant_run_gaps", "cpu").make_env().observation_size, dict)
+
+
 @pytest.fixture(scope="module")
 def parent_seed1(tmp_path_factory):
     """`parent`'s config with another seed (its programs come from the compilation cache)."""

@@ -377,7 +377,7 @@ def test_walker_falling_into_a_gap_is_detected():
 def test_ant_wedged_in_a_gap_fails_with_terminate_root_below():
     """The ant's torso (a sphere of radius 0.25 m) over a 0.45-m gap wedges between the platforms'
     edges with its centre below 0.2 m, where its feet stay above `terminate_at_height`: a failure
-    with ant_run_gaps's `terminate_root_below`, none without. On a platform it rests at 0.25 m and
+    with `terminate_root_below=0.2`, none without (the default). On a platform it rests at 0.25 m and
     does not fail. (MuJoCo C, 1.5 s; only the torso collides, as when its legs flail in the air.)"""
     results = {}
     for below in (0.2, None):
