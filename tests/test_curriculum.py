@@ -168,6 +168,17 @@ def test_lineage_plot_draws_the_parent_then_the_child(parent, child, tmp_path):
         plot.lineage(moved / "grandchild")
 
 
+def test_lineage_plot_labels_a_parent_named_like_its_child(parent, child, tmp_path, monkeypatch):
+    # Parent and child are both called `run`: the legend tells them apart by their folders.
+    from matplotlib.figure import Figure
+
+    figures = []
+    monkeypatch.setattr(Figure, "savefig", lambda self, *args, **kwargs: figures.append(self))
+    plot.compare_runs([child], "reward", tmp_path / "x.png", lineage=True)
+    legend = [t.get_text() for t in figures[0].axes[0].get_legend().get_texts()]
+    assert legend == [f"{parent.parent.name}/run (parent)", f"{child.parent.name}/run"]
+
+
 @pytest.fixture(scope="module")
 def staged(tmp_path_factory):
     """An uninterrupted two-stage run: evaluations at 0, 512, 1024 (stage 1), 1536, 2048 (stage 2)."""

@@ -151,12 +151,10 @@ def compare_runs(run_dirs: list[str | Path], metric: str, out: str | Path, linea
     key = resolve_metric(metric, available)
     fig = Figure(figsize=(7, 4.2))
     ax = fig.subplots()
-    labels = run_labels([d for d, _ in runs])
     if lineage:
-        for i, (d, recs) in enumerate(runs):
-            _draw_lineage(ax, d, recs, key, f"C{i}", labels[d])
+        _draw_lineages(ax, runs, key)
     else:
-        _draw_groups(ax, runs, key, labels)
+        _draw_groups(ax, runs, key, run_labels([d for d, _ in runs]))
     ax.set_xlabel("environment steps" + (" (from the first ancestor's start)" if lineage else ""))
     ax.set_ylabel(key)
     ax.grid(alpha=0.3)
@@ -187,13 +185,19 @@ def _draw_groups(ax: Any, runs: list[tuple[Path, list[dict[str, Any]]]], key: st
         ax.fill_between(grid, values.min(0), values.max(0), color=f"C{i}", alpha=0.2)
 
 
-def _draw_lineage(ax: Any, run_dir: Path, records: list[dict[str, Any]], key: str, color: str, label: str) -> None:
-    """The ancestors' curves (dashed, each up to its child's starting step), then the run's."""
-    offset = 0.0
-    for ancestor, step in lineage(run_dir)[:-1]:
-        steps, values = _curve(_read_records(ancestor), key, offset, upto=step)
-        ax.plot(steps, values, ls="--", marker="o", ms=2, color=color, alpha=0.6, label=f"{ancestor.name} (parent)")
-        offset += step or 0
-        ax.axvline(offset, color=color, ls=":", lw=1)
-    ax.plot(*_curve(records, key, offset), marker="o", ms=3, color=color, label=label)
-    stage_lines(ax, records, offset)
+def _draw_lineages(ax: Any, runs: list[tuple[Path, list[dict[str, Any]]]], key: str) -> None:
+    """Each run in its own colour: its ancestors' curves (dashed, each up to its child's starting
+    step), then its own. Runs and ancestors share one set of labels (`run_labels`), so a parent
+    named like another run (`short/ant_run_gaps-s0`, `long/ant_run_gaps-s0`) is told apart."""
+    chains = [lineage(d)[:-1] for d, _ in runs]
+    labels = run_labels(list(dict.fromkeys([d for d, _ in runs] + [a for chain in chains for a, _ in chain])))
+    for i, ((d, records), chain) in enumerate(zip(runs, chains, strict=True)):
+        offset = 0.0
+        for ancestor, step in chain:
+            steps, values = _curve(_read_records(ancestor), key, offset, upto=step)
+            dashed = {"ls": "--", "marker": "o", "ms": 2, "alpha": 0.6}
+            ax.plot(steps, values, color=f"C{i}", label=f"{labels[ancestor]} (parent)", **dashed)
+            offset += step or 0
+            ax.axvline(offset, color=f"C{i}", ls=":", lw=1)
+        ax.plot(*_curve(records, key, offset), marker="o", ms=3, color=f"C{i}", label=labels[d])
+        stage_lines(ax, records, offset)
