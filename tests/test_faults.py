@@ -7,6 +7,7 @@ import json
 import math
 import os
 import signal
+from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -307,6 +308,69 @@ def test_permission_denied_is_one_error_line_naming_the_path(tmp_path, monkeypat
     monkeypatch.setattr(os, "access", real_access)  # readable per os.access, refused by open
     with pytest.raises(VnlError, match="cannot read config file .*Permission denied"):
         config_lib.load_yaml(str(tmp_path / "secret.yaml"))
+
+
+# Run as an unprivileged user: what the CLI imports is imported first (Python and the checkout may
+# sit where only root can read: ~root, a CI clone in `mktemp -d`), then root drops to `nobody`.
+AS_USER = """
+import contextlib, io, logging, os, sys
+import yaml
+from vnl import cli
+with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+    import mujoco.mjx
+    from vnl.envs import registry
+    from vnl.train import ppo
+if os.geteuid() == 0:
+    import pwd
+    nobody = pwd.getpwnam("nobody")
+    os.setgroups([]); os.setgid(nobody.pw_gid); os.setuid(nobody.pw_uid)
+os.chdir(sys.argv[1])
+sys.exit(cli.main(sys.argv[2:]))
+"""
+
+
+def test_permission_denied_for_real_is_one_error_line(tmp_path):
+    """The same denials as above, not simulated: files and folders chmod-ed shut, `vnl` run in a
+    subprocess by a user they are shut to (root drops to `nobody` for it). Nothing is changed."""
+    import shutil
+    import stat
+    import subprocess
+    import sys
+    import tempfile
+
+    work = Path(tempfile.mkdtemp(prefix="vnl-perm-"))  # /tmp/...: reachable by any user
+    try:
+        work.chmod(0o755)
+        (work / "secret.yaml").write_text("ppo: {num_envs: 16}\n")
+        (work / "rec.nc").write_text("x")
+        (work / "run").mkdir()
+        (work / "run" / "config.yaml").write_text("env: ant_run\n")
+        (work / "run" / "metrics.jsonl").write_text('{"step": 0, "eval/episode_reward": 1.0}\n')
+        (work / "ro").mkdir()
+        for name, mode in [("secret.yaml", 0), ("rec.nc", 0), ("ro", 0o555), ("run", 0o755)]:
+            (work / name).chmod(mode)
+        for f in ("config.yaml", "metrics.jsonl"):
+            (work / "run" / f).chmod(0o644)
+        before = {p: (p.stat().st_mode, p.stat().st_mtime_ns) for p in work.rglob("*")}
+        cases = {
+            ("train", "ant_run", "--config", "secret.yaml"): "secret.yaml (permission denied)",
+            ("analyze", "rec.nc"): "rec.nc (permission denied)",
+            ("plot", "run", "--out", "ro/curve.png"): "cannot write to",
+            ("train", "ant_run", "--out", "ro/new-run"): "ro",
+        }
+        for argv, expected in cases.items():
+            done = subprocess.run(
+                [sys.executable, "-c", AS_USER, str(work), *argv], capture_output=True, text=True, timeout=120
+            )
+            err = done.stderr.strip().splitlines()
+            assert done.returncode == 2, (argv, done.stderr)
+            assert len(err) == 1 and err[0].startswith("vnl: error:") and expected in err[0], (argv, err)
+        assert {p: (p.stat().st_mode, p.stat().st_mtime_ns) for p in work.rglob("*")} == before
+        assert stat.S_IMODE((work / "secret.yaml").stat().st_mode) == 0
+    finally:
+        for p in [work, *work.rglob("*")]:
+            p.chmod(0o755)
+        shutil.rmtree(work)
 
 
 def test_plot_draws_a_diverged_run_whose_metrics_are_null(tmp_path, capsys):
