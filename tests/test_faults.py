@@ -270,18 +270,23 @@ def test_a_pixel_env_s_observation_is_recorded_as_state_and_images():
 # --- permissions --------------------------------------------------------------------------------
 
 
+def _permission_files(root: Path) -> None:
+    """A config, a recording, a run directory and a folder `ro`, for the permission tests."""
+    (root / "secret.yaml").write_text("ppo: {num_envs: 16}\n")
+    (root / "rec.nc").write_text("x")
+    (root / "run").mkdir()
+    (root / "run" / "config.yaml").write_text("env: ant_run\n")
+    (root / "run" / "metrics.jsonl").write_text('{"step": 0, "eval/episode_reward": 1.0}\n')
+    (root / "ro").mkdir()
+
+
 def test_permission_denied_is_one_error_line_naming_the_path(tmp_path, monkeypatch, capsys):
     """Unreadable inputs and unwritable output directories end in one `vnl: error:` line before
     anything is imported or compiled. The suite may run as root, which chmod cannot lock out, so
     the denial is simulated where vnl asks the OS (os.access, open)."""
     from vnl import cli
 
-    (tmp_path / "secret.yaml").write_text("ppo: {num_envs: 16}\n")
-    (tmp_path / "rec.nc").write_text("x")
-    (tmp_path / "run").mkdir()
-    (tmp_path / "run" / "config.yaml").write_text("env: ant_run\n")
-    (tmp_path / "run" / "metrics.jsonl").write_text('{"step": 0, "eval/episode_reward": 1.0}\n')
-    (tmp_path / "ro").mkdir()
+    _permission_files(tmp_path)
     locked = {str(tmp_path / "secret.yaml"), str(tmp_path / "rec.nc"), str(tmp_path / "ro")}
     real_access, real_open = os.access, open
 
@@ -341,12 +346,7 @@ def test_permission_denied_for_real_is_one_error_line(tmp_path):
     work = Path(tempfile.mkdtemp(prefix="vnl-perm-"))  # /tmp/...: reachable by any user
     try:
         work.chmod(0o755)
-        (work / "secret.yaml").write_text("ppo: {num_envs: 16}\n")
-        (work / "rec.nc").write_text("x")
-        (work / "run").mkdir()
-        (work / "run" / "config.yaml").write_text("env: ant_run\n")
-        (work / "run" / "metrics.jsonl").write_text('{"step": 0, "eval/episode_reward": 1.0}\n')
-        (work / "ro").mkdir()
+        _permission_files(work)
         for name, mode in [("secret.yaml", 0), ("rec.nc", 0), ("ro", 0o555), ("run", 0o755)]:
             (work / name).chmod(mode)
         for f in ("config.yaml", "metrics.jsonl"):
