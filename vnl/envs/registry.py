@@ -70,9 +70,10 @@ _RODENT_PRESETS = _c_on_cpu(
 _C_ON_CPU = _c_on_cpu()
 
 # humanoid_run on a CPU: Brax's humanoid PPO settings (reward scaling 0.1, entropy 1e-3) at the
-# ant's batch for 15M steps, about 43 minutes here (~6,100 env steps/s). Measured: it learns to
-# stay on its feet (870 of 1,000 steps, torso leaning) but not to run (0.04 m/s; README, Does
-# every task learn?); the healthy bonus (5 per step) outweighs walking (1.25 x v).
+# ant's batch for 15M steps, about 43-50 minutes here (5,200-6,100 env steps/s). Measured (README,
+# Does every task learn?): seed 0 stays on its feet (870 of 1,000 steps, torso leaning) but does
+# not run (0.04 m/s; the healthy bonus of 5 per step outweighs walking, 1.25 x v); seed 1 walks
+# at 1.43 m/s, its episodes ending in a fall after 670 steps on average.
 _HUMANOID_PRESETS = _c_on_cpu(
     {
         "ppo": {
