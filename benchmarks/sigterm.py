@@ -17,7 +17,6 @@ The first trial compiles (cold compilation cache), later ones load the programs 
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import signal
 import subprocess
@@ -27,6 +26,7 @@ import time
 from pathlib import Path
 
 from vnl.io import checkpoint
+from vnl.io import metrics as metrics_io
 
 READY = "[vnl] compiled and ready"
 
@@ -52,7 +52,7 @@ def trial(env: str, preset: str, delay: float, cache: Path, out: Path, timeout: 
     proc.stdout.read()  # drain the pipe so the child never blocks on it
     code = proc.wait(timeout=timeout)
     stopped = time.perf_counter() - sent
-    records = [json.loads(x) for x in (out / "metrics.jsonl").read_text().splitlines() if x.strip()]
+    records = metrics_io.read(out / "metrics.jsonl")
     walls = [r["wall_time"] for r in records if "wall_time" in r]
     return {
         "exit": code,
