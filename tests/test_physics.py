@@ -4,6 +4,7 @@ MJX, the NaN guard, threads, per-env model fields and the compilation cache."""
 import copy
 import functools
 import json
+import os
 import subprocess
 import sys
 import textwrap
@@ -312,6 +313,49 @@ def test_second_process_loads_the_c_physics_program_from_the_cache(tmp_path):
     assert runs[0]["hits"] == 0 and runs[1]["hits"] >= 1
     assert runs[0]["sum"] == runs[1]["sum"]  # the cached program computes the same rollout
     assert any((tmp_path / "cache").glob("jit_rollout-*"))
+
+
+
+QUIET_SCRIPT = textwrap.dedent(
+    """
+    import sys
+    if sys.argv[2] == "cli":
+        from vnl.cli import _configure_process
+        _configure_process(mujoco_needed=False)
+    import jax, jax.numpy as jp
+    from vnl import compile_cache
+    compile_cache.enable(sys.argv[1])
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)
+    hits = []
+    jax.monitoring.register_event_listener(lambda e, **kw: hits.append(e) if e.endswith("cache_hits") else None)
+    def f(x):
+        for i in range(50):
+            x = jp.sin(x) @ x + i
+        return x
+    print("RESULT", float(jax.jit(f)(jp.eye(8) / 8).sum()), len(hits))
+    """
+)
+
+
+def test_the_cli_keeps_xla_s_cache_load_warnings_off_the_console(tmp_path):
+    """jaxlib 0.8's XLA:CPU logs multi-kilobyte ERROR lines (a false SIGILL warning) whenever it
+    loads a program from the persistent cache; the CLI's process setup keeps them off the console,
+    and the program still loads from the cache and computes the same."""
+    env = {k: v for k, v in os.environ.items() if k != "TF_CPP_MIN_LOG_LEVEL"}
+
+    def run(mode: str) -> tuple[str, list[str]]:
+        cmd = [sys.executable, "-c", QUIET_SCRIPT, str(tmp_path / "cache"), mode]
+        p = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, env=env, timeout=300)
+        assert p.returncode == 0, p.stderr[-3000:]
+        return p.stderr, p.stdout.split("RESULT")[-1].split()
+
+    _, first = run("plain")  # writes the cache
+    plain, second = run("plain")
+    quiet, third = run("cli")
+    assert first[0] == second[0] == third[0] and first[1] == "0" and int(second[1]) >= 1 and int(third[1]) >= 1
+    if "cpu_aot_loader" not in plain:
+        pytest.skip("this jaxlib does not log the cache-load warning")
+    assert "cpu_aot_loader" not in quiet and "SIGILL" not in quiet, quiet[:2000]
 
 
 # --- training with C physics on two devices --------------------------------------------

@@ -47,6 +47,13 @@ def _configure_process(mujoco_needed: bool = True) -> str | None:
     import logging
 
     logging.getLogger("absl").setLevel(logging.ERROR)
+    # XLA's C++ log (read once, when jaxlib loads): FATAL only unless the user set a level
+    # (TF_CPP_MIN_LOG_LEVEL=0 shows all). jaxlib 0.8's XLA:CPU writes several multi-kilobyte ERROR
+    # lines each time it loads a program from the persistent compilation cache, warning of SIGILL,
+    # because its host check counts LLVM tuning flags (+prefer-no-gather/-scatter) as CPU features
+    # (jax-ml/jax#38445, openxla/xla#44565); the programs load and run (tests/test_physics.py).
+    # Real failures still reach the user: XLA raises them as Python exceptions.
+    os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
     if not mujoco_needed:
         return gl
     # mujoco.mjx prints "Failed to import warp" at import when the (GPU-only) Warp backend is not
