@@ -315,7 +315,6 @@ def test_second_process_loads_the_c_physics_program_from_the_cache(tmp_path):
     assert any((tmp_path / "cache").glob("jit_rollout-*"))
 
 
-
 QUIET_SCRIPT = textwrap.dedent(
     """
     import sys
