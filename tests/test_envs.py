@@ -565,3 +565,26 @@ def test_ground_scan_reads_platforms_and_gaps_ahead_from_the_episodes_layout():
         assert all(g == e for g, e, c in zip(got, expected, close, strict=True) if not c)
     with pytest.raises(VnlError, match="ground_scan"):
         vnl.make("ant_run_gaps", ground_scan=(float("nan"),))
+
+
+@pytest.mark.xdist_group("ant_run-c")
+def test_forward_velocity_cap_clips_the_forward_reward_only():
+    """With `forward_velocity_cap` c the forward term is w·min(v_x, c): steps faster than c earn
+    w·c, slower ones (and backward) their own v_x; the x_velocity metric stays uncapped."""
+    cap = 0.05
+    e = vnl.make("ant_run", impl="c", forward_velocity_cap=cap)
+    w = e.config.forward_reward_weight
+
+    @jax.jit
+    def rollout(key):
+        s = jax.vmap(e.reset)(jax.random.split(key, 4))
+        actions = jax.random.uniform(key, (60, 4, e.action_size), minval=-1.0, maxval=1.0)
+        return jax.lax.scan(lambda s, a: (jax.vmap(e.step)(s, a),) * 2, s, actions)[1]
+
+    traj = rollout(jax.random.PRNGKey(3))
+    vx = np.asarray(traj.metrics["x_velocity"])
+    alive = np.asarray(traj.metrics["physics_nan"]) == 0
+    assert (vx[alive] > cap).any() and (vx[alive] < cap).any()  # both sides of the cap are exercised
+    np.testing.assert_allclose(traj.metrics["reward/forward"], w * np.minimum(vx, cap), rtol=1e-5, atol=1e-6)
+    with pytest.raises(vnl.VnlError, match="forward_velocity_cap"):
+        vnl.make("ant_run", impl="c", forward_velocity_cap=-1.0)

@@ -4,7 +4,9 @@ The seed notebooks' MJX humanoid task, generalised to any walker. Reward terms (
 already scaled, as `metrics["reward/<term>"]`, so they sum to the reward):
 
   forward   = forward_reward_weight · v_x, v_x the x-velocity of the root body's subtree centre
-              of mass ((com_x after − com_x before) / dt over the control step)
+              of mass ((com_x after − com_x before) / dt over the control step); with
+              `forward_velocity_cap` c, forward_reward_weight · min(v_x, c): no reward for speed
+              above c, so staying up is worth more than going faster
   healthy   = healthy_reward while the root body's height is in `healthy_z_range` and its z-axis
               points up by at least `healthy_min_upright` (cosine of the tilt), else 0
   ctrl_cost = −ctrl_cost_weight · |action|²
@@ -42,6 +44,7 @@ class RunConfig(WalkerTaskConfig):
 
     observation: Literal["state", "proprioception"] = "state"
     forward_reward_weight: float = 1.0
+    forward_velocity_cap: float | None = None  # m/s; None: the forward reward grows with any speed
     healthy_reward: float = 1.0
     ctrl_cost_weight: float = 0.5
     healthy_z_range: tuple[float, float] = (0.26, 1.0)
@@ -75,6 +78,8 @@ class RunConfig(WalkerTaskConfig):
             raise VnlError(f"ctrl_cost_weight must be >= 0, got {self.ctrl_cost_weight}")
         if not -1.0 <= self.healthy_min_upright <= 1.0:
             raise VnlError(f"healthy_min_upright must be in [-1, 1], got {self.healthy_min_upright}")
+        if self.forward_velocity_cap is not None and not self.forward_velocity_cap > 0:
+            raise VnlError(f"forward_velocity_cap must be > 0 m/s (null: no cap), got {self.forward_velocity_cap}")
         if self.floor_size <= 0:
             raise VnlError(f"floor_size must be > 0, got {self.floor_size}")
         if self.actuator_gear is not None and not all(g > 0 for g in self.actuator_gear):
@@ -241,7 +246,8 @@ class Run(WalkerTask):
         velocity = (com_after - com_before) / self.dt
 
         healthy = self._is_healthy(data)
-        forward = cfg.forward_reward_weight * velocity[0]
+        vx = velocity[0] if cfg.forward_velocity_cap is None else jp.minimum(velocity[0], cfg.forward_velocity_cap)
+        forward = cfg.forward_reward_weight * vx
         healthy_term = cfg.healthy_reward * healthy
         ctrl_cost = -cfg.ctrl_cost_weight * jp.sum(jp.square(action))
         ok = 1.0 - blew_up
