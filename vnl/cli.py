@@ -182,12 +182,15 @@ def cmd_train(args: argparse.Namespace, gl: str | None) -> int:
         out = Path(args.out) if args.out else Path("runs") / f"{config.env}-{time.strftime('%Y%m%d-%H%M%S')}"
         result = ppo.train(config, out, say=say, finish=finish)
     if lead:
-        _summarize_run(out, config, result.wall_time)
+        _summarize_run(out, config, result.wall_time, resumed=bool(args.resume))
         _say(f"[vnl] run directory: {out}")
     return 130 if result.interrupted else 0
 
 
-def _summarize_run(out: Path, config: Any, wall_time: float) -> None:
+def _summarize_run(out: Path, config: Any, wall_time: float, resumed: bool = False) -> None:
+    """One line: eval reward first -> last, forward velocity, and minutes: the run's wall clock
+    (metrics' `wall_time`, which continues across resumes, as the progress line's "elapsed"),
+    and after a resume also this session's `wall_time` seconds."""
     from vnl.io import metrics as metrics_io
     from vnl.io import plot
 
@@ -202,7 +205,8 @@ def _summarize_run(out: Path, config: Any, wall_time: float) -> None:
         f"[vnl] eval reward {first.get('eval/episode_reward', float('nan')):.1f} ({start}) -> "
         f"{last.get('eval/episode_reward', float('nan')):.1f} at step {last['step']:,}"
         + (f"; mean forward velocity {vx:.2f} m/s" if vx is not None else "")
-        + f"; {wall_time / 60:.1f} min"
+        + f"; {float(last.get('wall_time') or wall_time) / 60:.1f} min"
+        + (f" ({wall_time / 60:.1f} since the resume)" if resumed else "")
     )
 
 
