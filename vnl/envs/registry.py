@@ -75,8 +75,9 @@ _C_ON_CPU = _c_on_cpu()
 # of upright (as the upright measure), and the forward reward capped at 1 m/s. Measured (README,
 # Does every task learn?): with Brax's rewards (bonus 5, any speed paid) seed 0 stood still (the
 # bonus outweighs walking) and seed 1 walked at 1.43 m/s but fell in a third of its episodes; with
-# the bonus 2 and no cap seed 0 ran at 3.3 m/s and fell after 695 of 1,000 steps; with the cap it
-# walks at ~1.1 m/s upright for every step of every evaluation episode from 6M steps on.
+# the bonus 2 and no cap seed 0 ran at 3.3 m/s and fell after 695 of 1,000 steps; with the cap (this
+# preset) seed 0 walks at ~1.1 m/s, upright through whole evaluation episodes from 6M steps on, but
+# seed 1 had not learned to balance by 10M (0.87 m/s, falling after 170 steps).
 _HUMANOID_PRESETS = _c_on_cpu(
     {
         "env_config": {"healthy_reward": 2.0, "healthy_min_upright": 0.7, "forward_velocity_cap": 1.0},
