@@ -246,8 +246,9 @@ class Run(WalkerTask):
         velocity = (com_after - com_before) / self.dt
 
         healthy = self._is_healthy(data)
-        vx = velocity[0] if cfg.forward_velocity_cap is None else jp.minimum(velocity[0], cfg.forward_velocity_cap)
-        forward = cfg.forward_reward_weight * vx
+        cap = cfg.forward_velocity_cap
+        paid_vx = velocity[0] if cap is None else jp.minimum(velocity[0], cap)  # x_velocity below stays uncapped
+        forward = cfg.forward_reward_weight * paid_vx
         healthy_term = cfg.healthy_reward * healthy
         ctrl_cost = -cfg.ctrl_cost_weight * jp.sum(jp.square(action))
         ok = 1.0 - blew_up
