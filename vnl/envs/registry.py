@@ -76,8 +76,8 @@ _C_ON_CPU = _c_on_cpu()
 # Does every task learn?): with Brax's rewards (bonus 5, any speed paid) seed 0 stood still (the
 # bonus outweighs walking) and seed 1 walked at 1.43 m/s but fell in a third of its episodes; with
 # the bonus 2 and no cap seed 0 ran at 3.3 m/s and fell after 695 of 1,000 steps; with the cap (this
-# preset) seed 0 walks at ~1.1 m/s, upright through whole evaluation episodes from 6M steps on, but
-# seed 1 had not learned to balance by 10M (0.87 m/s, falling after 170 steps).
+# preset) seeds 0 and 2 walk at ~1.1 m/s, upright through whole evaluation episodes from 6-7M steps
+# on, but seed 1 had not learned to balance by 10M (0.87 m/s, falling after 170 steps).
 _HUMANOID_PRESETS = _c_on_cpu(
     {
         "env_config": {"healthy_reward": 2.0, "healthy_min_upright": 0.7, "forward_velocity_cap": 1.0},
