@@ -52,20 +52,27 @@ def _timed_rounds(programs: dict[str, Program], rounds: int) -> dict[str, list[f
     return times
 
 
+_STATE = ("qpos", "qvel", "act", "mocap_pos", "mocap_quat")  # what the envs' resets set
+
+
+def _set_state(m: mujoco.MjModel, d: mujoco.MjData, state: object, i: int) -> None:
+    """`d` reset, then given env `i`'s reset state from the batched `state` (a CData)."""
+    mujoco.mj_resetData(m, d)
+    for f in _STATE:
+        getattr(d, f)[...] = getattr(state, f)[i]
+
+
 def ceiling_programs(env: vnl.Env, batch: int, steps: int) -> dict[str, Program]:
     """One-thread ways of stepping `batch` simulations `steps` control steps from the env's resets."""
     m, n = env.mj_model, env.n_substeps
     state = jax.device_get(_reset(env, batch).data)
     lo, hi = m.actuator_ctrlrange[:, 0], m.actuator_ctrlrange[:, 1]
     actions = np.random.default_rng(1).uniform(lo, hi, (steps, batch, m.nu))
-    fields = ("qpos", "qvel", "act", "mocap_pos", "mocap_quat")
     datas = [mujoco.MjData(m) for _ in range(batch)]
 
     def loop() -> None:
         for i, d in enumerate(datas):
-            mujoco.mj_resetData(m, d)
-            for f in fields:
-                getattr(d, f)[...] = getattr(state, f)[i]
+            _set_state(m, d, state, i)
         for a in actions:
             for d, u in zip(datas, a, strict=True):
                 d.ctrl[:] = u
@@ -76,7 +83,7 @@ def ceiling_programs(env: vnl.Env, batch: int, steps: int) -> dict[str, Program]
         kwargs = {} if stage is None else {"stage": stage}
 
         def run() -> None:
-            for f in fields:
+            for f in _STATE:
                 b.bind(f)[...] = getattr(state, f)
             for name in ("qacc_warmstart", "time"):
                 b.bind(name)[...] = 0
@@ -102,9 +109,7 @@ def _rollout_program(
     spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
     initial = np.zeros((batch, mujoco.mj_stateSize(m, spec)))
     for i in range(batch):
-        mujoco.mj_resetData(m, d)
-        for f in ("qpos", "qvel", "act", "mocap_pos", "mocap_quat"):
-            getattr(d, f)[...] = getattr(state, f)[i]
+        _set_state(m, d, state, i)
         mujoco.mj_getState(m, d, initial[i], spec)
     control = np.repeat(actions.transpose(1, 0, 2), n, axis=1)  # (batch, steps * n, nu)
     runner = rollout.Rollout(nthread=1)
