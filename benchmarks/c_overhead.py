@@ -22,13 +22,12 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import time
 from collections.abc import Callable
 
 import jax
 import mujoco
 import numpy as np
-from env_throughput import _reset, raw_c_program  # benchmarks/ is this script's directory
+from env_throughput import _reset, _seconds, raw_c_program  # benchmarks/ is this script's directory
 from mujoco import batch as mj_batch
 from mujoco import rollout
 
@@ -39,17 +38,19 @@ from vnl.physics import c_physics
 Program = Callable[[], object]
 
 
-def _timed_rounds(programs: dict[str, Program], rounds: int) -> dict[str, list[float]]:
-    """Seconds per call of each program, one call of each per round, after one untimed call."""
+def _timed_rounds(programs: dict[str, Program], rounds: int) -> tuple[dict[str, list[float]], dict[str, list[float]]]:
+    """Per program, the seconds of each call and the seconds of it spent in MuJoCo C's host
+    function, one call of each program per round, after one untimed call (compiling)."""
     for p in programs.values():
-        jax.block_until_ready(p())
+        _seconds(p)
     times: dict[str, list[float]] = {k: [] for k in programs}
+    host: dict[str, list[float]] = {k: [] for k in programs}
     for _ in range(rounds):
         for k, p in programs.items():
-            t = time.perf_counter()
-            jax.block_until_ready(p())
-            times[k].append(time.perf_counter() - t)
-    return times
+            h = c_physics.host_seconds()
+            times[k].append(_seconds(p))
+            host[k].append(c_physics.host_seconds() - h)
+    return times, host
 
 
 _STATE = ("qpos", "qvel", "act", "mocap_pos", "mocap_quat")  # what the envs' resets set
@@ -139,7 +140,7 @@ def env_programs(name: str, batch: int, steps: int, threads: int) -> tuple[dict[
 
 
 def _print_ceiling(env: vnl.Env, batch: int, steps: int, rounds: int) -> None:
-    times = _timed_rounds(ceiling_programs(env, batch, steps), rounds)
+    times, _ = _timed_rounds(ceiling_programs(env, batch, steps), rounds)
     base = times["mj_step loop"]
     print(f"\n1. MuJoCo C on 1 thread, {batch} simulations x {steps} control steps ({env.n_substeps} substeps)")
     print(f"{'how':<34} {'control steps/s':>16} {'x loop':>18}")
@@ -151,17 +152,8 @@ def _print_ceiling(env: vnl.Env, batch: int, steps: int, rounds: int) -> None:
 
 def _print_env(name: str, batch: int, steps: int, rounds: int, threads: int) -> None:
     programs, parts = env_programs(name, batch, steps, threads)
-    for p in programs.values():  # compile first
-        jax.block_until_ready(p())
-    times: dict[str, list[float]] = {k: [] for k in programs}
-    host: dict[str, list[float]] = {k: [] for k in programs}
-    for _ in range(rounds):
-        for k, p in programs.items():
-            h, t = c_physics.host_seconds(), time.perf_counter()
-            jax.block_until_ready(p())
-            times[k].append(time.perf_counter() - t)
-            host[k].append(c_physics.host_seconds() - h)
-    part_times = _timed_rounds(parts, rounds)
+    times, host = _timed_rounds(programs, rounds)
+    part_times, _ = _timed_rounds(parts, rounds)
     raw = times["raw Batch.step"]
     print(f"\n2. {name}, batch {batch}, {threads} threads, {steps} control steps per call")
     print(f"{'program':<18} {'env steps/s':>12} {'ms per step':>12} {'in host fn':>11} {'/ raw':>17}")
