@@ -588,3 +588,36 @@ def test_forward_velocity_cap_clips_the_forward_reward_only():
     np.testing.assert_allclose(traj.metrics["reward/forward"], w * np.minimum(vx, cap), rtol=1e-5, atol=1e-6)
     with pytest.raises(vnl.VnlError, match="forward_velocity_cap"):
         vnl.make("ant_run", impl="c", forward_velocity_cap=-1.0)
+
+
+@pytest.mark.xdist_group("ant_run-c")
+def test_the_clock_is_the_phase_of_the_episode_s_time_and_restarts_with_each_episode():
+    """`clock_period` T appends (sin, cos)(2π t / T), t the episode's time: (0, 1) at reset, the
+    phase of k control steps after k steps, (0, 1) again after an episode ends (auto-reset, as in
+    training). The other walker tasks append it too; off by default."""
+    from vnl.envs.wrappers import wrap_for_training
+
+    period = 0.35
+    env = vnl.make("ant_run", impl="c", clock_period=period)
+    assert env.observation_layout()[-1] == ("clock", 2)
+    assert "clock" not in dict(vnl.make("ant_run", impl="c").observation_layout())
+    assert env.observation_size == vnl.make("ant_run", impl="c").observation_size + 2
+    episode = 5
+    train_env = wrap_for_training(env, episode_length=episode)
+    state = jax.jit(train_env.reset)(jax.random.split(jax.random.PRNGKey(0), 2))
+    step = jax.jit(train_env.step)
+    action = jp.zeros((2, env.action_size))
+    np.testing.assert_allclose(state.obs[:, -2:], [[0.0, 1.0]] * 2, atol=1e-6)
+    for k in range(1, episode + 2):
+        state = step(state, action)
+        t = (k % episode) * env.dt  # the episode's 5th step ends it: the next state is the reset's
+        expected = [np.sin(2 * np.pi * t / period), np.cos(2 * np.pi * t / period)]
+        np.testing.assert_allclose(state.obs[:, -2:], [expected] * 2, atol=1e-5)
+    for name in ("ant_run_gaps", "ant_escape_bowl"):
+        other = vnl.make(name, impl="c", clock_period=period)
+        first = jax.jit(other.reset)(jax.random.PRNGKey(0))
+        assert other.observation_layout()[-1] == ("clock", 2)
+        assert sum(w for _, w in other.observation_layout()) == other.observation_size == first.obs.shape[0]
+        np.testing.assert_allclose(first.obs[-2:], [0.0, 1.0], atol=1e-6)
+    with pytest.raises(VnlError, match="clock_period must be at least two control steps"):
+        vnl.make("ant_run", clock_period=env.dt)

@@ -55,6 +55,10 @@ class WalkerTaskConfig:
     # `threads` threads (null: the cores this process may use), the fast choice on a CPU.
     impl: Literal["jax", "warp", "c"] = "jax"
     threads: int | None = None
+    # Add `clock` to the observation: (sin, cos) of 2π·t/clock_period, t the episode's time (s). A
+    # phase signal the policy can turn into a rhythmic gait (legged-locomotion RL's gait clock);
+    # None: no clock.
+    clock_period: float | None = None
 
     def validate(self) -> None:
         if self.impl == "warp":
@@ -75,6 +79,12 @@ class WalkerTaskConfig:
                 raise VnlError(f"walker_xml: no such file {str(path)!r}; give the path of an MJCF (.xml) model")
         if not self.root_body:
             raise VnlError("root_body must name a body of the walker, e.g. torso")
+        control_dt = self.physics_timestep * self.n_substeps
+        if self.clock_period is not None and not self.clock_period >= 2 * control_dt:
+            raise VnlError(
+                f"clock_period must be at least two control steps ({2 * control_dt:g} s), got {self.clock_period}; "
+                "or null for no clock"
+            )
 
 
 def check_warp_available() -> None:
@@ -350,6 +360,18 @@ class WalkerTask(Env):
             layout.append(("appendages_pos", 3 * n_app))
         layout += [("world_zaxis", 3), ("velocimeter", 3), ("gyro", 3)]
         return layout
+
+    def clock_layout(self) -> list[tuple[str, int]]:
+        """[("clock", 2)] with `clock_period`, else []: append to a task's observation layout."""
+        return [] if self._config.clock_period is None else [("clock", 2)]
+
+    def clock(self, data: mjx.Data) -> list[jax.Array]:
+        """[(sin, cos) of 2π·time/clock_period, shape (2,)] with `clock_period`, else []."""
+        period = self._config.clock_period
+        if period is None:
+            return []
+        phase = (2.0 * jp.pi / period) * data.time
+        return [jp.stack([jp.sin(phase), jp.cos(phase)]).astype(jp.float32)]
 
     def proprioception(self, data: mjx.Data) -> jax.Array:
         """dm_control-style proprioception, flat float32 (see `proprioception_layout`)."""

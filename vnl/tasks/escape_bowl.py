@@ -159,7 +159,7 @@ class EscapeBowl(WalkerTask):
 
     def _obs(self, data: mjx.Data) -> jax.Array:
         origin = -data.xpos[self._root] @ data.xmat[self._root]
-        return jp.concatenate([self.proprioception(data), origin.astype(jp.float32)])
+        return jp.concatenate([self.proprioception(data), origin.astype(jp.float32), *self.clock(data)])
 
     def observation_layout(self) -> list[tuple[str, int]]:
-        return self.proprioception_layout() + [("origin", 3)]
+        return self.proprioception_layout() + [("origin", 3)] + self.clock_layout()

@@ -287,16 +287,16 @@ class Run(WalkerTask):
 
     def observation_layout(self) -> list[tuple[str, int]]:
         if self._config.observation == "proprioception":
-            return self.proprioception_layout()
+            return self.proprioception_layout() + self.clock_layout()
         m = self._mj_model
         layout = [("qpos[2:]", m.nq - 2), ("qvel", m.nv)]
         if self._walker.name in ("humanoid", "brax_humanoid"):
             layout += [("cinert[1:]", (m.nbody - 1) * 10), ("cvel[1:]", (m.nbody - 1) * 6), ("qfrc_actuator", m.nv)]
-        return layout
+        return layout + self.clock_layout()
 
     def _obs(self, data: mjx.Data) -> jax.Array:
         if self._config.observation == "proprioception":
-            return self.proprioception(data)
+            return jp.concatenate([self.proprioception(data), *self.clock(data)])
         parts = [data.qpos[self._obs_qpos_start :], data.qvel]
         if self._walker.name in ("humanoid", "brax_humanoid"):
             parts += [
@@ -304,4 +304,4 @@ class Run(WalkerTask):
                 data.cvel[1:].ravel(),
                 data.qfrc_actuator,
             ]
-        return jp.concatenate(parts).astype(jp.float32)
+        return jp.concatenate(parts + self.clock(data)).astype(jp.float32)

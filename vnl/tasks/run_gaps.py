@@ -233,13 +233,13 @@ class RunGaps(WalkerTask):
         if cfg.ground_scan:
             points = data.xpos[self._root, 0] + jp.asarray(cfg.ground_scan, jp.float32)
             parts.append(gaps.on_platform(layout, points))
-        return jp.concatenate(parts).astype(jp.float32)
+        return jp.concatenate(parts + self.clock(data)).astype(jp.float32)
 
     def observation_layout(self) -> list[tuple[str, int]]:
         cfg: RunGapsConfig = self._config
         extra = [("corridor", 4)] if cfg.observe_corridor else []
         extra += [("ground_ahead", len(cfg.ground_scan))] if cfg.ground_scan else []
-        return self.proprioception_layout() + extra
+        return self.proprioception_layout() + extra + self.clock_layout()
 
     @property
     def corridor(self) -> gaps.GapsParams:
