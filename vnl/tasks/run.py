@@ -159,8 +159,9 @@ Healthy: the torso 2.5-50 cm high and tilted at most 45° (cos 0.7071, the uprig
 tilt). With any tilt short of lying on its back counted healthy (0.0), an untrained policy lying
 on its side earned the whole healthy bonus; at 60° (0.5, where talmolab's vnl-playground rodent
 tasks end episodes) the cpu preset's two seeds stood (0.07 m/s) or lunged and tipped over (0.30
-m/s, upright 75%); at 45° both stayed upright 92-96% of the episode and the only gaits appeared
-(seed 0: 0.69 m/s at 5.6M steps; README, Does every task learn?).
+m/s, upright 75%); at 45° three seeds stayed upright 87-100% of the episode and the only gaits
+appeared (0.69 m/s at one evaluation of seeds 0 and 2, not stable; README, Does every task
+learn?). 0.7071 (not `base.UPRIGHT_COS`, 0.70711) is the value those runs measured.
 """
 
 
