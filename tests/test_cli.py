@@ -77,6 +77,21 @@ def test_eval_prints_table_and_writes_json(trained_run, tmp_path):
     assert 1 <= summary["episode_length"]["mean"] <= 20
 
 
+def test_step_best_loads_the_checkpoint_that_scored_highest(trained_run, tmp_path):
+    out, stdout = trained_run
+    kept = set(checkpoint.steps(out))
+    records = [r for r in metrics_io.read(out / "metrics.jsonl") if r["step"] in kept]
+    best = max(records, key=lambda r: r["eval/episode_reward"])["step"]
+    p = run("eval", out, "--step", "best", "--episodes", "2", "--steps", "5", "--out", tmp_path / "e.json")
+    assert p.returncode == 0, p.stderr
+    assert f"--step best: step {best:,} (eval/episode_reward" in p.stderr
+    assert json.loads((tmp_path / "e.json").read_text())["checkpoint_step"] == best
+    # `vnl train` names the best checkpoint at the end when it is not the last one.
+    assert (f"was at step {best:,}; its checkpoint is kept" in stdout) == (best != max(kept)), stdout
+    p = run("eval", out, "--step", "bets")
+    assert p.returncode == 2 and "vnl: error:" in p.stderr and "--step" in p.stderr
+
+
 def test_render_any_named_camera(trained_run, tmp_path):
     out, _ = trained_run
     p = run("render", "--list-cameras", out)

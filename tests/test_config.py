@@ -30,6 +30,8 @@ def test_defaults_and_overrides_make_new_configs():
         ("ppo.num_envs=100", ["multiple of num_envs", "100"]),
         ("ppo.learning_rate=abc", ["ppo.learning_rate", "number"]),
         ("ppo.learning_rate=-1", ["learning_rate", "> 0"]),
+        ("ppo.learning_rate_final=-1e-4", ["learning_rate_final", ">= 0"]),
+        ("ppo.learning_rate_decay_steps=1000", ["learning_rate_decay_steps", "learning_rate_final"]),
         ("ppo.num_envs=2.5", ["ppo.num_envs", "integer"]),
         ("ppo.discounting=1.5", ["discounting"]),
         ("network.activation=gelu", ["network.activation", "swish"]),
@@ -38,6 +40,7 @@ def test_defaults_and_overrides_make_new_configs():
         ("env_config.nonsense=3", ["nonsense", "valid keys"]),
         ("env_config.healthy_z_range=[1.0, 0.5]", ["healthy_z_range"]),
         ("log.checkpoint_every=0", ["checkpoint_every"]),
+        ("log.keep_best=reward", ["keep_best", "eval/episode_reward", "null"]),
         ("seed=-3", ["seed"]),
         ("ppo.normalize_observations=3", ["normalize_observations", "true or false"]),
         ("noequals", ["key=value"]),
@@ -48,6 +51,22 @@ def test_bad_values_name_the_key(assignment, words):
         build(assignment)
     for w in words:
         assert w in str(e.value), (w, str(e.value))
+
+
+def test_learning_rate_decay_is_linear_over_its_steps_and_fixed_in_config_yaml():
+    from vnl.train.loop import learning_rate
+
+    assert learning_rate(build()) == pytest.approx(3e-4)  # no final rate: constant
+    config = build("ppo.learning_rate_final=1e-5", "ppo.num_timesteps=204800")
+    p = config.ppo
+    updates = 204_800 // p.env_steps_per_training_step * p.num_updates_per_batch * p.num_minibatches
+    schedule = learning_rate(config)
+    assert float(schedule(0)) == pytest.approx(3e-4)
+    assert float(schedule(updates // 2)) == pytest.approx((3e-4 + 1e-5) / 2)
+    assert float(schedule(updates)) == float(schedule(10 * updates)) == pytest.approx(1e-5)
+    # config.yaml holds the decay length, so a resume with a longer --steps keeps the schedule.
+    assert train_config.resolved(config).ppo.learning_rate_decay_steps == 204_800
+    assert train_config.resolved(build()).ppo.learning_rate_decay_steps is None
 
 
 def test_unknown_env_and_preset_list_valid_names():

@@ -107,6 +107,21 @@ def test_replacing_a_same_step_checkpoint_never_leaves_that_step_without_one(tmp
     assert sorted(p.name for p in checkpoint.checkpoint_dir(tmp_path).iterdir()) == names
 
 
+def test_rotation_keeps_the_best_evaluated_checkpoint(tmp_path):
+    """With keep_best the checkpoint scoring highest on that metric outlives the newest-N rotation;
+    NaN and missing values never count as best; without keep_best it is rotated out."""
+    rewards = {0: 1.0, 1: 9.0, 2: math.nan, 3: 4.0, 4: 9.0, 5: 2.0}
+    for step, reward in rewards.items():
+        meta = {"record": {"step": step, "eval/episode_reward": reward}}
+        checkpoint.save(tmp_path, step, PARAMS, 2, {"x": np.zeros(2)}, meta, keep_best="eval/episode_reward")
+    assert checkpoint.steps(tmp_path) == [1, 4, 5]  # the newest two, and step 1 (the earliest 9.0)
+    assert checkpoint.best_step(tmp_path) == 1
+    assert checkpoint.recorded(tmp_path, 1, "eval/episode_reward") == 9.0
+    assert checkpoint.best_step(tmp_path, "eval/no_such_metric") is None
+    checkpoint.save(tmp_path, 6, PARAMS, 2, {"x": np.zeros(2)}, {"record": {"eval/episode_reward": 12.0}})
+    assert checkpoint.steps(tmp_path) == [5, 6]
+
+
 def test_leftovers_of_a_killed_write_are_removed_and_never_loaded(tmp_path):
     _save(tmp_path, 1, 1)
     root = checkpoint.checkpoint_dir(tmp_path)

@@ -144,6 +144,36 @@ def test_resume_is_bit_exact_on_ant_run(tmp_path):
     assert ra[-1]["eval/episode_reward"] != ra[0]["eval/episode_reward"]  # the runs did something
 
 
+def test_learning_rate_decay_resumes_exactly(reference, tmp_path):
+    """With `ppo.learning_rate_final` the rate falls linearly over the decay length that
+    config.yaml fixes: a run stopped at K and resumed to 2K is the 2K run never stopped, and a
+    resume past the decay trains on at the final rate (and says so)."""
+    ref, res = tmp_path / "ref", tmp_path / "res"
+    ppo.train(cfg(learning_rate_final=0.0), ref, say=quiet)
+    ppo.train(
+        cfg(num_timesteps=K, num_evals=2, learning_rate_final=0.0, learning_rate_decay_steps=2 * K), res, say=quiet
+    )
+    ppo.resume(res, flags={"ppo": {"num_timesteps": 2 * K}}, say=quiet)
+    _, sa, _ = checkpoint.load_train_state(ref)
+    _, sb, _ = checkpoint.load_train_state(res)
+    for k in sa:
+        np.testing.assert_array_equal(sa[k], sb[k], err_msg=k)
+    # Two training steps of 512 env steps per epoch; each epoch's metric is its updates' mean rate.
+    p = cfg().ppo
+    u = p.num_updates_per_batch * p.num_minibatches
+    rates = [r["training/learning_rate"] for r in metrics_io.read(ref / "metrics.jsonl")[1:]]
+    expected = [3e-3 * (1 - (2 * u * e + (2 * u - 1) / 2) / (4 * u)) for e in (0, 1)]
+    np.testing.assert_allclose(rates, expected, rtol=1e-5)
+    # The constant-rate run's parameters differ from the decayed run's.
+    _, constant = checkpoint.load(reference[0])
+    _, decayed = checkpoint.load(ref)
+    assert any(not np.array_equal(x, y) for x, y in zip(leaves(constant), leaves(decayed), strict=True))
+    said = []
+    ppo.resume(res, flags={"ppo": {"num_timesteps": 3 * K}}, say=said.append)
+    assert any("stays there" in line for line in said), said
+    assert metrics_io.read(res / "metrics.jsonl")[-1]["training/learning_rate"] == 0.0
+
+
 def test_sigterm_then_resume_gives_the_uninterrupted_result(reference, tmp_path):
     """`vnl train` stopped by SIGTERM mid-run and resumed to the end equals the uninterrupted run."""
     ref, _ = reference

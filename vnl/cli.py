@@ -157,7 +157,11 @@ def cmd_train(args: argparse.Namespace, gl: str | None) -> int:
         return _final_video(run_dir, config, gl) if config.log.video else None
 
     if args.init_from:
-        flags["init"] = {"run": args.init_from, "step": args.step, "keep_optimizer": args.keep_optimizer}
+        flags["init"] = {
+            "run": args.init_from,
+            "step": _chosen_step(args.init_from, args.step),
+            "keep_optimizer": args.keep_optimizer,
+        }
     if args.resume:
         out = Path(args.resume)
         from vnl.train.config import read_config
@@ -242,7 +246,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     from vnl.policy import load_run
     from vnl.rollout import rollout, summarize
 
-    run = load_run(args.run_dir, step=args.step)
+    run = load_run(args.run_dir, step=_chosen_step(args.run_dir, args.step))
     steps = args.steps or run.config.episode_length()
     r = rollout(run.env, run.policy, jax.random.PRNGKey(args.seed), args.episodes, steps)
     summary = {
@@ -283,7 +287,7 @@ def cmd_render(args: argparse.Namespace, gl: str | None) -> int:
     from vnl.policy import load_run
     from vnl.rollout import policy_video
 
-    run = load_run(args.run_dir, step=args.step)
+    run = load_run(args.run_dir, step=_chosen_step(args.run_dir, args.step))
     name = f"render_{args.camera or 'side'}.mp4".replace("/", "_")
     out = args.out or str(run.run_dir / name)
     path, n = policy_video(run.env, run.policy, out, args.camera, args.steps, args.width, args.height, args.seed)
@@ -304,7 +308,7 @@ def cmd_record(args: argparse.Namespace) -> int:
     from vnl import record
     from vnl.policy import load_run
 
-    run = load_run(args.run_dir, step=args.step)
+    run = load_run(args.run_dir, step=_chosen_step(args.run_dir, args.step))
     steps = args.steps or run.config.episode_length()
     ds = record.record(run, args.episodes, steps, args.seed, deterministic=not args.stochastic)
     out = record.write(ds, args.out or run.run_dir / "record.nc")
@@ -333,7 +337,7 @@ def cmd_view(args: argparse.Namespace) -> int:
     else:
         if args.episode:
             raise VnlError("--episode picks an episode of a recording; a run directory is recorded for one episode")
-        run = load_run(source, step=args.step)
+        run = load_run(source, step=_chosen_step(source, args.step))
         out = Path(args.out) if args.out else run.run_dir / "view.rrd"
         _output_file(str(out))
         steps = args.steps or run.config.episode_length()
@@ -446,6 +450,32 @@ def _integer(minimum: int, maximum: int | None = None) -> Callable[[str], int]:
 _POSITIVE, _NON_NEGATIVE = _integer(1), _integer(0)
 
 
+def _step_arg(text: str) -> int | str:
+    """`--step`: a checkpoint step (>= 0) or `best`."""
+    return "best" if text == "best" else _NON_NEGATIVE(text)
+
+
+_step_arg.__name__ = "step"
+
+
+def _chosen_step(run_dir: str | Path, step: int | str | None) -> int | None:
+    """The checkpoint step `--step` chooses: a step, None (the newest), or for `best` the step of
+    the checkpoint that scored highest on the run's `log.keep_best` metric (said on stderr)."""
+    if step != "best":
+        return step  # type: ignore[return-value]
+    from vnl.io import checkpoint
+    from vnl.train.config import read_config
+
+    metric = read_config(run_dir).log.keep_best or "eval/episode_reward"
+    best = checkpoint.best_step(run_dir, metric)
+    if best is None:
+        raise VnlError(f"--step best: no checkpoint in {run_dir} recorded {metric}; give a step (--step N)")
+    print(
+        f"[vnl] --step best: step {best:,} ({metric} {checkpoint.recorded(run_dir, best, metric):g})", file=sys.stderr
+    )
+    return best
+
+
 def _run_dir(path: str, flag: str = "RUN_DIR", config: bool = True) -> None:
     """A run directory: it exists, is a directory and (with `config`) holds a readable config.yaml."""
     p = Path(path)
@@ -547,7 +577,7 @@ def _warm_start_flags(p: argparse.ArgumentParser) -> None:
         "--init-from", metavar="RUN_DIR", help="start from this run's policy, value network and observation normalizer"
     )
     g.add_argument(
-        "--step", type=_NON_NEGATIVE, help="with --init-from: the parent's checkpoint step (default: newest)"
+        "--step", type=_step_arg, help="with --init-from: the parent's checkpoint step or `best` (default: newest)"
     )
     g.add_argument(
         "--keep-optimizer", action="store_true", help="with --init-from: also keep its Adam state (default: fresh)"
@@ -559,7 +589,7 @@ def _view_parser(sub: Any) -> None:
     p.add_argument("source", metavar="RUN_DIR|RECORDING", help="a run (records one episode) or a `vnl record` file")
     p.add_argument("--episode", type=_NON_NEGATIVE, default=0, help="the recording's episode (default 0)")
     p.add_argument("--steps", type=_POSITIVE, help="with a run: control steps (default: episode length)")
-    p.add_argument("--step", type=_NON_NEGATIVE, help="with a run: checkpoint step (default: newest)")
+    p.add_argument("--step", type=_step_arg, help="with a run: checkpoint step or `best` (default: newest)")
     p.add_argument("--seed", type=_NON_NEGATIVE, default=0)
     p.add_argument(
         "--units", type=_NON_NEGATIVE, default=4, help="traces of each layer's most variable units (default 4)"
@@ -625,7 +655,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("run_dir")
     p.add_argument("--episodes", type=_POSITIVE, default=16)
     p.add_argument("--steps", type=_POSITIVE, help="max steps per episode (default: episode length)")
-    p.add_argument("--step", type=_NON_NEGATIVE, help="checkpoint step (default: newest)")
+    p.add_argument("--step", type=_step_arg, help="checkpoint step, or `best` (log.keep_best) (default: newest)")
     p.add_argument("--seed", type=_NON_NEGATIVE, default=0)
     p.add_argument("--out", help="JSON file (default <run_dir>/eval.json)")
     _cache_flags(p)
@@ -635,7 +665,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--camera", help="camera name (see --list-cameras); default: side")
     p.add_argument("--out", help=".mp4 path (default <run_dir>/render_<camera>.mp4)")
     p.add_argument("--steps", type=_POSITIVE, help="control steps (default: 10 s)")
-    p.add_argument("--step", type=_NON_NEGATIVE, help="checkpoint step (default: newest)")
+    p.add_argument("--step", type=_step_arg, help="checkpoint step, or `best` (log.keep_best) (default: newest)")
     p.add_argument("--width", type=_integer(16, 4096), default=480)
     p.add_argument("--height", type=_integer(16, 4096), default=360)
     p.add_argument("--seed", type=_NON_NEGATIVE, default=0)
@@ -655,7 +685,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("run_dir")
     p.add_argument("--episodes", type=_POSITIVE, default=4)
     p.add_argument("--steps", type=_POSITIVE, help="control steps per episode (default: episode length)")
-    p.add_argument("--step", type=_NON_NEGATIVE, help="checkpoint step (default: newest)")
+    p.add_argument("--step", type=_step_arg, help="checkpoint step, or `best` (log.keep_best) (default: newest)")
     p.add_argument("--seed", type=_NON_NEGATIVE, default=0)
     p.add_argument("--stochastic", action="store_true", help="sample actions instead of the mean action")
     p.add_argument("--out", help="NetCDF file (default <run_dir>/record.nc)")

@@ -91,13 +91,17 @@ def save(
     keep: int = 0,
     train_state: dict[str, np.ndarray] | None = None,
     meta: dict[str, Any] | None = None,
+    keep_best: str | None = None,
 ) -> Path:
-    """Writes checkpoint `step` atomically; keeps the newest `keep` (0 = all). Returns its path.
+    """Writes checkpoint `step` atomically; keeps the newest `keep` (0 = all) and, with
+    `keep_best`, the one whose evaluation scored highest on that metric (`best_step`). Returns
+    its path.
 
     Args:
       params: Brax's (normalizer_params, policy_params, value_params).
       train_state: named host arrays of the full training state (`PPOLoop.to_arrays`), or None.
-      meta: JSON-serializable facts about the checkpoint.
+      meta: JSON-serializable facts about the checkpoint; its "record" (the evaluation's metrics
+        record) is what `best_step` ranks.
     """
     import jax
     from flax.training import orbax_utils
@@ -132,8 +136,10 @@ def save(
     if replaced.exists():
         _remove(replaced)
     if keep > 0:
+        spared = best_step(run_dir, keep_best) if keep_best else None
         for old in steps(run_dir)[:-keep]:
-            _remove(step_dir(run_dir, old))
+            if old != spared:
+                _remove(step_dir(run_dir, old))
     return final
 
 
@@ -173,6 +179,24 @@ def steps(run_dir: str | Path) -> list[int]:
         if p.is_dir() and (_STEP_DIR.match(p.name) or _REPLACED.match(p.name)):
             found.add(int(p.name.removeprefix(".replaced-")))
     return sorted(found)
+
+
+def recorded(run_dir: str | Path, step: int, metric: str) -> float | None:
+    """The value of `metric` in the evaluation record of checkpoint `step` (its meta.json); None
+    when the checkpoint has no such finite value (or its meta is unreadable)."""
+    try:
+        with open(step_dir(run_dir, step) / META) as f:
+            value = json.load(f).get("record", {}).get(metric)
+    except (OSError, ValueError, AttributeError):
+        return None
+    return float(value) if isinstance(value, int | float) and np.isfinite(value) else None
+
+
+def best_step(run_dir: str | Path, metric: str = "eval/episode_reward") -> int | None:
+    """The step of the checkpoint whose evaluation scored highest on `metric` (the earliest of
+    equals); None when no checkpoint in `run_dir` recorded it."""
+    scored = [(value, -s) for s in steps(run_dir) if (value := recorded(run_dir, s, metric)) is not None]
+    return -max(scored)[1] if scored else None
 
 
 def _candidates(run_dir: str | Path, step: int | None) -> list[int]:

@@ -32,6 +32,13 @@ class PPOConfig:
     num_updates_per_batch: int = 4
     unroll_length: int = 10
     learning_rate: float = 3e-4
+    # None: a constant learning rate. A number: the rate falls linearly from `learning_rate` to it
+    # over the first `learning_rate_decay_steps` env steps (None: all `num_timesteps`), then stays
+    # there, as CleanRL's and SB3's PPO anneal it. config.yaml holds the resolved decay length, so
+    # `vnl train --resume --steps` with a longer total keeps the schedule (and trains on at the
+    # final rate) and a resumed run is the run never stopped.
+    learning_rate_final: float | None = None
+    learning_rate_decay_steps: int | None = None
     entropy_cost: float = 1e-2
     discounting: float = 0.97
     gae_lambda: float = 0.95
@@ -63,6 +70,13 @@ class PPOConfig:
         for key in ("learning_rate", "reward_scaling"):
             if not getattr(self, key) > 0:
                 raise VnlError(f"{key} must be > 0, got {getattr(self, key)}")
+        if self.learning_rate_final is not None and self.learning_rate_final < 0:
+            raise VnlError(f"learning_rate_final must be >= 0 (null: a constant rate), got {self.learning_rate_final}")
+        if self.learning_rate_decay_steps is not None:
+            if self.learning_rate_final is None:
+                raise VnlError("learning_rate_decay_steps needs learning_rate_final (the rate it decays to)")
+            if self.learning_rate_decay_steps < 1:
+                raise VnlError(f"learning_rate_decay_steps must be >= 1, got {self.learning_rate_decay_steps}")
         if self.entropy_cost < 0:
             raise VnlError(f"entropy_cost must be >= 0, got {self.entropy_cost}")
         for key in ("discounting", "gae_lambda"):
@@ -126,6 +140,10 @@ class LogConfig:
 
     checkpoint_every: int = 1  # write a checkpoint every N evaluations
     keep_checkpoints: int = 5  # newest N kept; 0 keeps all
+    # Also keep the checkpoint whose evaluation scored highest on this metric (of the evaluations
+    # checkpointed, every `checkpoint_every`), so a policy that later unlearns is not lost; `vnl
+    # eval/render/record RUN --step best` and `--init-from RUN --step best` load it. null: only the newest.
+    keep_best: str | None = "eval/episode_reward"
     video: bool = True  # an .mp4 of the final policy
     video_camera: str | None = None  # None: the env's default tracking camera
     video_seconds: float = 10.0
@@ -144,6 +162,11 @@ class LogConfig:
             raise VnlError(f"checkpoint_every must be >= 1, got {self.checkpoint_every}")
         if self.keep_checkpoints < 0:
             raise VnlError(f"keep_checkpoints must be >= 0, got {self.keep_checkpoints}")
+        if self.keep_best is not None and not self.keep_best.startswith(("eval/", "training/")):
+            raise VnlError(
+                f"keep_best must name a metric of metrics.jsonl (eval/... or training/...), got {self.keep_best!r}; "
+                "e.g. eval/episode_reward, or null to keep only the newest checkpoints"
+            )
         if self.video_seconds <= 0:
             raise VnlError(f"video_seconds must be > 0, got {self.video_seconds}")
         if self.video_width < 16 or self.video_height < 16:
@@ -361,9 +384,13 @@ def _env_preset(env: str, preset: str) -> dict[str, Any]:
 
 
 def resolved(config: TrainConfig) -> TrainConfig:
-    """The config with `env_config` expanded to the env's full config (what config.yaml holds)."""
+    """The config with `env_config` expanded to the env's full config and the learning rate's
+    decay length made explicit (what config.yaml holds)."""
     full = config_lib.to_dict(config.resolved_env_config())
-    return dataclasses.replace(config, env_config=full)
+    p = config.ppo
+    if p.learning_rate_final is not None and p.learning_rate_decay_steps is None:
+        p = dataclasses.replace(p, learning_rate_decay_steps=p.num_timesteps)
+    return dataclasses.replace(config, env_config=full, ppo=p)
 
 
 def read_config(run_dir: str | Path) -> TrainConfig:

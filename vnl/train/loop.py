@@ -102,6 +102,27 @@ def epoch_length(config: TrainConfig) -> int:
     return math.ceil(p.num_timesteps / (max(p.num_evals - 1, 1) * p.env_steps_per_training_step))
 
 
+def learning_rate(config: TrainConfig) -> float | optax.Schedule:
+    """`ppo.learning_rate`, or with `ppo.learning_rate_final` a linear schedule from it to the
+    final rate over the optimizer updates of `ppo.learning_rate_decay_steps` env steps (default
+    `num_timesteps`). A function of Adam's update count, which checkpoints keep, so a resumed
+    run follows the same schedule."""
+    p = config.ppo
+    if p.learning_rate_final is None:
+        return p.learning_rate
+    training_steps = math.ceil((p.learning_rate_decay_steps or p.num_timesteps) / p.env_steps_per_training_step)
+    updates = training_steps * p.num_updates_per_batch * p.num_minibatches
+    return optax.linear_schedule(p.learning_rate, p.learning_rate_final, updates)
+
+
+def current_learning_rate(rate: float | optax.Schedule, opt_state: Any) -> jax.Array:
+    """The rate the next update of `opt_state` uses: () float32."""
+    if not callable(rate):
+        return jp.array(rate, jp.float32)
+    _, count = optax.tree_utils.tree_get_all_with_path(opt_state, "count")[0]
+    return jp.asarray(rate(count), jp.float32)
+
+
 def run_evaluation(
     evaluator: acting.Evaluator, key: jax.Array, params: Any, training_metrics: dict[str, float]
 ) -> tuple[dict[str, Any], jax.Array]:
@@ -153,7 +174,8 @@ class PPOLoop:
 
         self.network = make_network(config, env)
         self.make_policy = ppo_networks.make_inference_fn(self.network)
-        adam = optax.adam(learning_rate=p.learning_rate)
+        self.learning_rate = learning_rate(config)
+        adam = optax.adam(learning_rate=self.learning_rate)
         self.optimizer = (
             optax.chain(optax.clip_by_global_norm(p.max_grad_norm), adam) if p.max_grad_norm is not None else adam
         )
@@ -430,7 +452,7 @@ class PPOLoop:
         opt_state, params, key = carry
         key, key_loss = jax.random.split(key)
         (_, metrics), grads = self._loss_and_pgrad(params, normalizer, data, key_loss)
-        metrics["learning_rate"] = jp.array(self.config.ppo.learning_rate)
+        metrics["learning_rate"] = current_learning_rate(self.learning_rate, opt_state)
         updates, opt_state = self.optimizer.update(grads, opt_state)
         params = optax.apply_updates(params, updates)
         return (opt_state, params, key), metrics

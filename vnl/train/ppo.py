@@ -21,6 +21,7 @@ from typing import Any
 
 from vnl import config as config_lib
 from vnl.envs.wrappers import wrap_for_training
+from vnl.errors import VnlError
 from vnl.io import checkpoint
 from vnl.io import metrics as metrics_io
 from vnl.train import distributed, loop, networks, rundir, warm_start
@@ -34,6 +35,8 @@ def brax_kwargs(config: TrainConfig) -> dict[str, Any]:
     """Keyword arguments of `brax.training.agents.ppo.train.train` for `config` (all but the
     environment and the callbacks)."""
     p = config.ppo
+    if p.learning_rate_final is not None:
+        raise VnlError("Brax's ppo.train has no linear learning-rate decay; unset ppo.learning_rate_final")
     return dict(
         num_timesteps=p.num_timesteps,
         wrap_env_fn=wrap_for_training,
@@ -111,4 +114,10 @@ def resume(
         metrics_io.read(run_dir / "metrics.jsonl")  # a damaged file is an error now, not after compiling
     if config != saved:
         distributed.on_lead(lambda: config_lib.dump_yaml(config, str(run_dir / "config.yaml")))
+    p = config.ppo
+    if p.learning_rate_final is not None and (p.learning_rate_decay_steps or p.num_timesteps) < p.num_timesteps:
+        say(
+            f"[vnl] the learning rate reaches ppo.learning_rate_final ({p.learning_rate_final:g}) at "
+            f"{p.learning_rate_decay_steps:,} steps and stays there to {p.num_timesteps:,}"
+        )
     return Session(config, run_dir, Restored(step, arrays, meta), say, progress=progress).run(finish)

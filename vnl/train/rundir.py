@@ -62,14 +62,15 @@ def checkpoint_bytes(config: TrainConfig, env: Env) -> int:
 
 def check_disk_space(run_dir: Path, config: TrainConfig, env: Env) -> None:
     """Fails before compiling when the disk cannot hold the checkpoints the run will keep."""
-    keep = config.log.keep_checkpoints or config.ppo.num_evals
+    log = config.log
+    keep = log.keep_checkpoints + (log.keep_best is not None) if log.keep_checkpoints else config.ppo.num_evals
     need = (min(keep, config.ppo.num_evals) + 1) * checkpoint_bytes(config, env) + (64 << 20)
     free = shutil.disk_usage(run_dir).free
     if free < need:
         raise VnlError(
             f"not enough free disk space in {run_dir}: {free / 2**20:,.0f} MiB free, this run needs about "
             f"{need / 2**20:,.0f} MiB for its checkpoints; free some space, use another --out, or keep fewer "
-            f"checkpoints (--set log.keep_checkpoints=1)"
+            f"checkpoints (--set log.keep_checkpoints=1 --set log.keep_best=null)"
         )
 
 

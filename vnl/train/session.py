@@ -116,12 +116,24 @@ class Session:
         finally:
             if self.tracker is not None:
                 self.tracker.close()
+        distributed.on_lead(lambda: self._say_best(result.steps))
         if interrupted:
             self.say(
                 f"[vnl] stopped at step {result.steps:,}; continue with `vnl train --resume {self.run_dir}`, or "
                 f"use the checkpoint with `vnl eval {self.run_dir}` / `vnl render {self.run_dir}`."
             )
         return result
+
+    def _say_best(self, last: int) -> None:
+        """Process 0: names the kept best checkpoint when it is not the last one."""
+        metric = self.config.log.keep_best
+        best = checkpoint.best_step(self.run_dir, metric) if metric else None
+        if best is not None and best != last:
+            value = checkpoint.recorded(self.run_dir, best, metric)
+            self.say(
+                f"[vnl] the best evaluation ({metric} {value:g}) was at step {best:,}; its checkpoint is kept: "
+                f"`vnl eval {self.run_dir} --step best`"
+            )
 
     def _open_run_dir(self) -> None:
         """Process 0: puts a resumed run directory back at the restored step, opens the trackers,
@@ -221,7 +233,8 @@ class Session:
         try:
             with self.stop.critical():
                 params = self.loop.params(state)
-                checkpoint.save(self.run_dir, step, params, self.config.log.keep_checkpoints, arrays, meta)
+                log = self.config.log
+                checkpoint.save(self.run_dir, step, params, log.keep_checkpoints, arrays, meta, log.keep_best)
         except OSError as e:
             raise self._write_error(f"the checkpoint of step {step:,}", e) from None
 
