@@ -39,6 +39,7 @@ def test_defaults_and_overrides_make_new_configs():
         ("env_config.reset_noise_scale=-1", ["reset_noise_scale", ">= 0"]),
         ("env_config.nonsense=3", ["nonsense", "valid keys"]),
         ("env_config.healthy_z_range=[1.0, 0.5]", ["healthy_z_range"]),
+        ("ppo.desired_kl=0", ["desired_kl", "> 0"]),
         ("log.checkpoint_every=0", ["checkpoint_every"]),
         ("log.keep_best=reward", ["keep_best", "eval/episode_reward", "null"]),
         ("seed=-3", ["seed"]),
@@ -67,6 +68,11 @@ def test_learning_rate_decay_is_linear_over_its_steps_and_fixed_in_config_yaml()
     # config.yaml holds the decay length, so a resume with a longer --steps keeps the schedule.
     assert train_config.resolved(config).ppo.learning_rate_decay_steps == 204_800
     assert train_config.resolved(build()).ppo.learning_rate_decay_steps is None
+
+
+def test_two_learning_rate_schedules_are_refused():
+    with pytest.raises(VnlError, match="desired_kl and ppo.learning_rate_final"):
+        build("ppo.desired_kl=0.01", "ppo.learning_rate_final=0")
 
 
 def test_unknown_env_and_preset_list_valid_names():

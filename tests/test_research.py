@@ -77,11 +77,13 @@ def resumed(tmp_path_factory):
     return out, result
 
 
-def test_loop_matches_brax_ppo_train():
-    """vnl's loop is Brax's PPO: same parameters and evaluations as `ppo.train` for one seed."""
+@pytest.mark.parametrize("desired_kl", [None, 0.01])
+def test_loop_matches_brax_ppo_train(desired_kl):
+    """vnl's loop is Brax's PPO: same parameters and evaluations as `ppo.train` for one seed, with
+    a constant learning rate and with Brax's KL-adaptive one (`ppo.desired_kl`)."""
     from brax.training.agents.ppo import train as brax_ppo
 
-    config = cfg()
+    config = cfg(desired_kl=desired_kl)
     env = registry.entry("test_point").factory(config.resolved_env_config())
     brax_records = []
     _, brax_params, _ = brax_ppo.train(
@@ -100,6 +102,11 @@ def test_loop_matches_brax_ppo_train():
         np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)
     for (_, a), (_, b) in zip(ours, brax_records, strict=True):
         np.testing.assert_allclose(a["eval/episode_reward"], b["eval/episode_reward"], rtol=1e-5)
+    if desired_kl is not None:  # the rate moved, as Brax moved it
+        np.testing.assert_allclose(
+            tm["training/learning_rate"], brax_records[-1][1]["training/learning_rate"], rtol=1e-5
+        )
+        assert tm["training/learning_rate"] != config.ppo.learning_rate
 
 
 def test_resume_is_bit_exact(reference, resumed):

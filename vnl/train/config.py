@@ -39,6 +39,12 @@ class PPOConfig:
     # final rate) and a resumed run is the run never stopped.
     learning_rate_final: float | None = None
     learning_rate_decay_steps: int | None = None
+    # None: no KL-adaptive rate. A number: Brax's ADAPTIVE_KL schedule (rsl_rl's rule for legged
+    # robots): after each minibatch's gradient the rate is divided by 1.5 when the mean KL of the
+    # policy to the one that collected the data exceeds 2x this, multiplied by 1.5 below half,
+    # within [1e-5, 1e-2], starting from `learning_rate`; the observation normalizer is updated
+    # after the SGD, as Brax does, so the KL compares policies on the same inputs.
+    desired_kl: float | None = None
     entropy_cost: float = 1e-2
     discounting: float = 0.97
     gae_lambda: float = 0.95
@@ -77,6 +83,11 @@ class PPOConfig:
                 raise VnlError("learning_rate_decay_steps needs learning_rate_final (the rate it decays to)")
             if self.learning_rate_decay_steps < 1:
                 raise VnlError(f"learning_rate_decay_steps must be >= 1, got {self.learning_rate_decay_steps}")
+        if self.desired_kl is not None:
+            if not self.desired_kl > 0:
+                raise VnlError(f"desired_kl must be > 0 (null: no KL-adaptive rate), got {self.desired_kl}")
+            if self.learning_rate_final is not None:
+                raise VnlError("ppo.desired_kl and ppo.learning_rate_final are two learning-rate schedules; set one")
         if self.entropy_cost < 0:
             raise VnlError(f"entropy_cost must be >= 0, got {self.entropy_cost}")
         for key in ("discounting", "gae_lambda"):

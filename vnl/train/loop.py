@@ -41,6 +41,7 @@ from brax.training import types as brax_types
 from brax.training.acme import running_statistics, specs
 from brax.training.agents.ppo import losses as ppo_losses
 from brax.training.agents.ppo import networks as ppo_networks
+from brax.training.agents.ppo import optimizer as ppo_optimizer
 from brax.training.agents.ppo.train import TrainingState
 
 from vnl.envs import randomize
@@ -100,6 +101,9 @@ def epoch_length(config: TrainConfig) -> int:
     """Training steps per epoch (between two evaluations), as Brax computes it."""
     p = config.ppo
     return math.ceil(p.num_timesteps / (max(p.num_evals - 1, 1) * p.env_steps_per_training_step))
+
+
+KL_RATE_RANGE = (1e-5, 1e-2)  # the learning rate's bounds with `ppo.desired_kl` (Brax's defaults)
 
 
 def learning_rate(config: TrainConfig) -> float | optax.Schedule:
@@ -175,7 +179,10 @@ class PPOLoop:
         self.network = make_network(config, env)
         self.make_policy = ppo_networks.make_inference_fn(self.network)
         self.learning_rate = learning_rate(config)
-        adam = optax.adam(learning_rate=self.learning_rate)
+        if p.desired_kl is None:
+            adam = optax.adam(learning_rate=self.learning_rate)
+        else:  # the rate lives in the optimizer state, where Brax's rule changes it
+            adam = optax.inject_hyperparams(optax.adam)(learning_rate=p.learning_rate)
         self.optimizer = (
             optax.chain(optax.clip_by_global_norm(p.max_grad_norm), adam) if p.max_grad_norm is not None else adam
         )
@@ -418,15 +425,19 @@ class PPOLoop:
         # (batch_size * num_minibatches, unroll_length, ...)
         data = jax.tree.map(lambda x: jp.swapaxes(x, 1, 2), data)
         data = jax.tree.map(lambda x: jp.reshape(x, (-1,) + x.shape[2:]), data)
-        normalizer = running_statistics.update(
-            training.normalizer_params, _without_pixels(data.observation), pmap_axis_name=AXIS
+        update = functools.partial(
+            running_statistics.update, batch=_without_pixels(data.observation), pmap_axis_name=AXIS
         )
+        # Brax updates the normalizer before the SGD, or after it with the KL-adaptive rate.
+        normalizer = training.normalizer_params if p.desired_kl is not None else update(training.normalizer_params)
         (opt_state, params, _), metrics = jax.lax.scan(
             functools.partial(self._sgd_step, data=data, normalizer=normalizer),
             (training.optimizer_state, training.params, key_sgd),
             (),
             length=p.num_updates_per_batch,
         )
+        if p.desired_kl is not None:
+            normalizer = update(normalizer)
         training = TrainingState(
             optimizer_state=opt_state,
             params=params,
@@ -452,7 +463,13 @@ class PPOLoop:
         opt_state, params, key = carry
         key, key_loss = jax.random.split(key)
         (_, metrics), grads = self._loss_and_pgrad(params, normalizer, data, key_loss)
-        metrics["learning_rate"] = current_learning_rate(self.learning_rate, opt_state)
+        p = self.config.ppo
+        if p.desired_kl is not None:
+            kl = jax.lax.pmean(metrics["kl_mean"], axis_name=AXIS)
+            opt_state, rate = ppo_optimizer.adaptive_kl_learning_rate(opt_state, kl, p.desired_kl, *KL_RATE_RANGE)
+        else:
+            rate = current_learning_rate(self.learning_rate, opt_state)
+        metrics["learning_rate"] = rate
         updates, opt_state = self.optimizer.update(grads, opt_state)
         params = optax.apply_updates(params, updates)
         return (opt_state, params, key), metrics

@@ -60,6 +60,7 @@ def brax_kwargs(config: TrainConfig) -> dict[str, Any]:
         num_evals=max(p.num_evals, 2),
         num_eval_envs=p.num_eval_envs,
         deterministic_eval=p.deterministic_eval,
+        **({} if p.desired_kl is None else {"learning_rate_schedule": "ADAPTIVE_KL", "desired_kl": p.desired_kl}),
     )
 
 
