@@ -73,6 +73,9 @@ def test_learning_rate_decay_is_linear_over_its_steps_and_fixed_in_config_yaml()
 def test_two_learning_rate_schedules_are_refused():
     with pytest.raises(VnlError, match="desired_kl and ppo.learning_rate_final"):
         build("ppo.desired_kl=0.01", "ppo.learning_rate_final=0")
+    # A kept optimizer would carry the parent's update count into the child's decay.
+    with pytest.raises(VnlError, match="--keep-optimizer with ppo.learning_rate_final"):
+        build("ppo.learning_rate_final=0", "init.run=/some/run", "init.keep_optimizer=true")
 
 
 def test_unknown_env_and_preset_list_valid_names():

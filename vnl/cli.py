@@ -470,8 +470,9 @@ def _chosen_step(run_dir: str | Path, step: int | str | None) -> int | None:
     best = checkpoint.best_step(run_dir, metric)
     if best is None:
         raise VnlError(f"--step best: no checkpoint in {run_dir} recorded {metric}; give a step (--step N)")
+    value = checkpoint.recorded(run_dir, best, metric)  # None if a running run rotated it out since
     print(
-        f"[vnl] --step best: step {best:,} ({metric} {checkpoint.recorded(run_dir, best, metric):g})", file=sys.stderr
+        f"[vnl] --step best: step {best:,} ({metric} {value if value is None else format(value, 'g')})", file=sys.stderr
     )
     return best
 

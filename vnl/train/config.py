@@ -259,6 +259,11 @@ class TrainConfig:
             )
         if self.seed < 0:
             raise VnlError(f"seed must be >= 0, got {self.seed}")
+        if self.init.keep_optimizer and self.ppo.learning_rate_final is not None:
+            raise VnlError(
+                "--keep-optimizer with ppo.learning_rate_final: the decay counts the optimizer's updates, so it "
+                "would go on from the parent's count instead of starting at learning_rate; drop one of them"
+            )
         self._validate_curriculum()
 
     def _validate_curriculum(self) -> None:
