@@ -115,9 +115,9 @@ def test_rotation_keeps_the_best_evaluated_checkpoint(tmp_path):
         meta = {"record": {"step": step, "eval/episode_reward": reward}}
         checkpoint.save(tmp_path, step, PARAMS, 2, {"x": np.zeros(2)}, meta, keep_best="eval/episode_reward")
     assert checkpoint.steps(tmp_path) == [1, 4, 5]  # the newest two, and step 1 (the earliest 9.0)
-    assert checkpoint.best_step(tmp_path) == 1
-    assert checkpoint.recorded(tmp_path, 1, "eval/episode_reward") == 9.0
-    assert checkpoint.best_step(tmp_path, "eval/no_such_metric") is None
+    assert checkpoint.best(tmp_path) == (1, 9.0)
+    assert checkpoint.recorded(tmp_path, 5, "eval/episode_reward") == 2.0
+    assert checkpoint.best(tmp_path, "eval/no_such_metric") is None
     checkpoint.save(tmp_path, 6, PARAMS, 2, {"x": np.zeros(2)}, {"record": {"eval/episode_reward": 12.0}})
     assert checkpoint.steps(tmp_path) == [5, 6]
 

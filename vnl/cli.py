@@ -467,14 +467,11 @@ def _chosen_step(run_dir: str | Path, step: int | str | None) -> int | None:
     from vnl.train.config import read_config
 
     metric = read_config(run_dir).log.keep_best or "eval/episode_reward"
-    best = checkpoint.best_step(run_dir, metric)
-    if best is None:
+    found = checkpoint.best(run_dir, metric)
+    if found is None:
         raise VnlError(f"--step best: no checkpoint in {run_dir} recorded {metric}; give a step (--step N)")
-    value = checkpoint.recorded(run_dir, best, metric)  # None if a running run rotated it out since
-    print(
-        f"[vnl] --step best: step {best:,} ({metric} {value if value is None else format(value, 'g')})", file=sys.stderr
-    )
-    return best
+    print(f"[vnl] --step best: step {found[0]:,} ({metric} {found[1]:g})", file=sys.stderr)
+    return found[0]
 
 
 def _run_dir(path: str, flag: str = "RUN_DIR", config: bool = True) -> None:

@@ -94,14 +94,14 @@ def save(
     keep_best: str | None = None,
 ) -> Path:
     """Writes checkpoint `step` atomically; keeps the newest `keep` (0 = all) and, with
-    `keep_best`, the one whose evaluation scored highest on that metric (`best_step`). Returns
+    `keep_best`, the one whose evaluation scored highest on that metric (`best`). Returns
     its path.
 
     Args:
       params: Brax's (normalizer_params, policy_params, value_params).
       train_state: named host arrays of the full training state (`PPOLoop.to_arrays`), or None.
       meta: JSON-serializable facts about the checkpoint; its "record" (the evaluation's metrics
-        record) is what `best_step` ranks.
+        record) is what `best` ranks.
     """
     import jax
     from flax.training import orbax_utils
@@ -136,7 +136,8 @@ def save(
     if replaced.exists():
         _remove(replaced)
     if keep > 0:
-        spared = best_step(run_dir, keep_best) if keep_best else None
+        found = best(run_dir, keep_best) if keep_best else None
+        spared = found[0] if found else None
         for old in steps(run_dir)[:-keep]:
             if old != spared:
                 _remove(step_dir(run_dir, old))
@@ -192,11 +193,14 @@ def recorded(run_dir: str | Path, step: int, metric: str) -> float | None:
     return float(value) if isinstance(value, int | float) and np.isfinite(value) else None
 
 
-def best_step(run_dir: str | Path, metric: str = "eval/episode_reward") -> int | None:
-    """The step of the checkpoint whose evaluation scored highest on `metric` (the earliest of
-    equals); None when no checkpoint in `run_dir` recorded it."""
+def best(run_dir: str | Path, metric: str = "eval/episode_reward") -> tuple[int, float] | None:
+    """(step, value) of the checkpoint whose evaluation scored highest on `metric` (the earliest
+    of equals); None when no checkpoint in `run_dir` recorded it."""
     scored = [(value, -s) for s in steps(run_dir) if (value := recorded(run_dir, s, metric)) is not None]
-    return -max(scored)[1] if scored else None
+    if not scored:
+        return None
+    value, step = max(scored)
+    return -step, value
 
 
 def _candidates(run_dir: str | Path, step: int | None) -> list[int]:

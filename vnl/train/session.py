@@ -127,12 +127,11 @@ class Session:
     def _say_best(self, last: int) -> None:
         """Process 0: names the kept best checkpoint when it is not the last one."""
         metric = self.config.log.keep_best
-        best = checkpoint.best_step(self.run_dir, metric) if metric else None
-        if best is not None and best != last:
-            value = checkpoint.recorded(self.run_dir, best, metric)
+        found = checkpoint.best(self.run_dir, metric) if metric else None
+        if found is not None and found[0] != last:
             self.say(
-                f"[vnl] the best evaluation ({metric} {value:g}) was at step {best:,}; its checkpoint is kept: "
-                f"`vnl eval {self.run_dir} --step best`"
+                f"[vnl] the best evaluation ({metric} {found[1]:g}) was at step {found[0]:,}; its checkpoint is "
+                f"kept: `vnl eval {self.run_dir} --step best`"
             )
 
     def _open_run_dir(self) -> None:
