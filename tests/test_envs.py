@@ -413,6 +413,42 @@ def test_ant_wedged_in_a_gap_fails_with_terminate_root_below():
         vnl.make("ant_run_gaps", terminate_root_below=float("nan"))
 
 
+def test_run_gaps_tilt_check_and_healthy_bonus():
+    """`healthy_min_upright` fails a rat tilted past it (60° fails at 45°, 30° does not; neither
+    without the check), and `healthy_reward` is paid on every step that does not fail, on top of
+    dm_control's velocity term (MuJoCo C)."""
+    strict = vnl.make("rodent_run_gaps", impl="c", healthy_min_upright=0.7071, healthy_reward=0.2)
+    loose = vnl.make("rodent_run_gaps", impl="c")
+    m = strict.mj_model
+    state = strict.reset(jax.random.PRNGKey(0))
+    failed = {}
+    for deg in (30, 60):
+        d = mujoco.MjData(m)
+        d.qpos[:] = np.asarray(state.data.qpos)
+        d.mocap_pos[:] = np.asarray(state.data.mocap_pos)
+        half = np.deg2rad(deg) / 2
+        d.qpos[3:7] = (np.cos(half), np.sin(half), 0.0, 0.0)  # a roll of `deg` about the body's x
+        mujoco.mj_forward(m, d)
+        for name, e in (("strict", strict), ("loose", loose)):
+            failed[name, deg] = float(e.failed(mjx.put_data(m, d)))
+    assert failed == {("strict", 30): 0.0, ("strict", 60): 1.0, ("loose", 30): 0.0, ("loose", 60): 0.0}
+    step = jax.jit(strict.step)
+    rewards_, velocity, fell = [], [], []
+    for t in range(40):
+        state = step(state, jp.full((strict.action_size,), 0.3 if t % 10 < 5 else -0.3))
+        rewards_.append(float(state.reward))
+        velocity.append(float(state.metrics["reward/velocity"]))
+        fell.append(float(state.metrics["fell"]))
+        if state.done:
+            break
+    expected = np.asarray(velocity) + 0.2 * (1.0 - np.asarray(fell))
+    np.testing.assert_allclose(rewards_, expected, atol=1e-6)
+    assert np.asarray(rewards_).min() >= 0.2 - 1e-6 or fell[-1] == 1.0
+    for bad in ({"healthy_min_upright": 1.5}, {"healthy_reward": -1.0}):
+        with pytest.raises(VnlError, match=next(iter(bad))):
+            vnl.make("rodent_run_gaps", impl="c", **bad)
+
+
 @pytest.mark.xdist_group("user_walker")
 def test_user_walker_file_errors_name_the_problem(tmp_path):
     bad = tmp_path / "bad.xml"

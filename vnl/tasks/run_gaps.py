@@ -1,15 +1,18 @@
 """Run through a corridor of platforms and gaps (dm_control's `RunThroughCorridor` on
 `GapsCorridor`, as in `basic_rodent_2020.rodent_run_gaps`).
 
-Reward (one term, `metrics["reward/velocity"]`):
+Reward (`metrics["reward/velocity"]` + `metrics["reward/healthy"]`):
 
   velocity = tolerance(v_x, bounds=(v*, v*), margin=v*)   (dm_control `rewards.tolerance`,
              linear sigmoid, value 0 at the margin), v_x the x-velocity of the root body's
              subtree centre of mass (MuJoCo's `subtree_linvel[root]`), v* = `target_velocity`.
+  healthy  = `healthy_reward` on every step that does not fail (0 by default, as dm_control:
+             the velocity term alone).
 
 The episode fails (done) when an end effector (or, for walkers without any, the root body)
 drops below `terminate_at_height` (a fall into a gap or off the corridor), when the root body
-drops below `terminate_root_below` (if set: the ant's torso wedged in a gap), when a non-foot geom
+drops below `terminate_root_below` (if set: the ant's torso wedged in a gap), when the root body
+tilts further from upright than `healthy_min_upright` allows (if set), when a non-foot geom
 touches a platform and `contact_termination` is on, or when the physics blows up. Every
 `reset(rng)` draws a new platform/gap layout (`vnl.arenas.gaps`), different in every vmapped
 environment, without recompiling.
@@ -55,6 +58,14 @@ class RunGapsConfig(WalkerTaskConfig):
     # centre below 0.2 m and its feet on the platforms, above `terminate_at_height`; without this
     # it flailed there for the rest of the episode (frames: README, Results).
     terminate_root_below: float | None = None
+    # The episode also fails when the root body's z-axis points up by less than this (the cosine of
+    # the largest tilt, as rodent_run's check; None: never). dm_control's task has no such check,
+    # and with MuJoCo C (no contact termination) the rat fell onto its side at once and learned to
+    # wriggle forward lying down (README, Results).
+    healthy_min_upright: float | None = None
+    # Reward per step that does not fail (0: dm_control's velocity term alone). With a tilt check,
+    # a bonus makes staying up worth something beyond the speed it allows.
+    healthy_reward: float = 0.0
     contact_termination: bool = False
     # Add `corridor` to the observation: the corridor's axis (world x) in the root body's frame and
     # the root's sideways offset from the corridor's centre line in half-widths (4 numbers). A blind
@@ -94,6 +105,13 @@ class RunGapsConfig(WalkerTaskConfig):
             )
         if self.terminate_root_below is not None and not np.isfinite(self.terminate_root_below):
             raise VnlError(f"terminate_root_below must be a height in metres or null, got {self.terminate_root_below}")
+        if self.healthy_min_upright is not None and not -1.0 <= self.healthy_min_upright <= 1.0:
+            raise VnlError(
+                f"healthy_min_upright must be the cosine of the largest tilt, in [-1, 1], or null; "
+                f"got {self.healthy_min_upright}"
+            )
+        if not (np.isfinite(self.healthy_reward) and self.healthy_reward >= 0):
+            raise VnlError(f"healthy_reward must be >= 0, got {self.healthy_reward}")
         if any(not np.isfinite(d) for d in self.ground_scan):
             raise VnlError(f"ground_scan must be finite distances in metres, got {list(self.ground_scan)}")
         if not 0 <= self.spawn_x < c.start_length:
@@ -164,6 +182,7 @@ class RunGaps(WalkerTask):
         zero = jp.zeros((), jp.float32)
         metrics = {
             "reward/velocity": zero,
+            "reward/healthy": zero,
             "x_position": data.xpos[self._root, 0],
             "x_velocity": zero,
             "distance": zero,
@@ -185,7 +204,8 @@ class RunGaps(WalkerTask):
         vx = self.subtree_linvel(data)[0]
         velocity = rewards.tolerance(vx, (cfg.target_velocity, cfg.target_velocity), margin=cfg.target_velocity)
         fell = self.failed(data)
-        reward = velocity * ok
+        healthy = cfg.healthy_reward * (1.0 - fell) * ok
+        reward = velocity * ok + healthy
         done = jp.maximum(fell, blew_up)
         # Progress: the furthest point the root has reached along the corridor, and the gaps behind it.
         max_x = state.info["max_x"]
@@ -193,7 +213,8 @@ class RunGaps(WalkerTask):
         crossed = gaps.gaps_behind(layout, new_max) - gaps.gaps_behind(layout, max_x)
         metrics = {
             **state.metrics,
-            "reward/velocity": reward,
+            "reward/velocity": velocity * ok,
+            "reward/healthy": healthy,
             "x_position": data.xpos[self._root, 0],
             "x_velocity": vx * ok,
             "distance": (data.xpos[self._root, 0] - cfg.spawn_x) * ok,
@@ -207,12 +228,15 @@ class RunGaps(WalkerTask):
         return state.replace(data=data, obs=obs, reward=reward, done=done, metrics=metrics, info=info)
 
     def failed(self, data: mjx.Data) -> jax.Array:
-        """1.0 if the episode fails: fell below `terminate_at_height` or (optionally) a non-foot
-        geom touches a platform."""
+        """1.0 if the episode fails: fell below `terminate_at_height`, or (each if set) the root
+        below `terminate_root_below`, tilted past `healthy_min_upright`, or a non-foot geom touching
+        a platform."""
         cfg: RunGapsConfig = self._config
         low = jp.any(data.xpos[self._low_bodies, 2] < cfg.terminate_at_height)
         if cfg.terminate_root_below is not None:
             low = low | (data.xpos[self._root, 2] < cfg.terminate_root_below)
+        if cfg.healthy_min_upright is not None:
+            low = low | (data.xmat[self._root, 2, 2] < cfg.healthy_min_upright)
         if cfg.contact_termination and len(self._nonfoot) and data.contact.geom1.shape[0]:
             c = data.contact
             g1, g2 = c.geom1, c.geom2
