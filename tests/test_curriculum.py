@@ -121,6 +121,51 @@ def test_keep_optimizer_takes_the_parents_adam_state(parent):
     np.testing.assert_array_equal(ours[".env.obs"], loop.to_arrays(fresh)[".env.obs"])  # its own envs
 
 
+def test_warm_start_with_an_added_sensor_begins_as_the_parent(parent, tmp_path, capsys):
+    """A child whose observation adds an entry (`target`) to the parent's: the first layers take
+    the parent's weights for the old inputs and zeros for the new one, the normalizer mean 0 and
+    std 1 there, so the child's step-0 policy acts exactly as the parent's; then it trains."""
+    import jax
+    import jax.numpy as jp
+
+    from vnl.envs import registry
+    from vnl.train.loop import PPOLoop
+
+    config = child_config(parent, observe_target=True)
+    env = registry.make("test_point", **config.env_config)
+    grown = warm_start.check_layout(warm_start.load_parent(config), env, "test_point")
+    assert grown.input_rows.tolist() == [0, 1, -1] and grown.new_inputs == ("target (1)",)
+    loop = PPOLoop(env, config)
+    ours = loop.to_arrays(warm_start.apply(loop, loop.init(config.seed), grown, keep_optimizer=False))
+    _, theirs, _ = checkpoint.load_train_state(parent)
+    for net in ("policy", "value"):
+        kernel = f".training.params.{net}['params']['hidden_0']['kernel']"
+        np.testing.assert_array_equal(ours[kernel][:2], theirs[kernel])
+        assert ours[kernel].shape[0] == 3 and not ours[kernel][2].any()
+    mean, std = ours[".training.normalizer_params.mean"], ours[".training.normalizer_params.std"]
+    np.testing.assert_array_equal(mean[:2], theirs[".training.normalizer_params.mean"])
+    assert (mean[2], std[2]) == (0.0, 1.0)
+    # The same actions as the parent's policy, whatever the new input says.
+    from vnl import policy as policy_lib
+
+    act = policy_lib.load_policy(parent, deterministic=True)
+    obs = np.asarray([[0.3, -0.1], [-0.5, 0.2]], np.float32)
+    child_obs = np.concatenate([obs, [[7.0], [-3.0]]], axis=1)
+    key = jax.random.PRNGKey(0)
+    with pytest.raises(VnlError, match="drop --keep-optimizer"):
+        warm_start.apply(loop, loop.init(config.seed), grown, keep_optimizer=True)
+    out = tmp_path / "child"
+    ppo.train(config, out, say=print)
+    assert "new observation entries target (1)" in capsys.readouterr().out
+    child_act = policy_lib.load_policy(out, step=0, deterministic=True)
+    np.testing.assert_allclose(child_act(jp.asarray(child_obs), key), act(jp.asarray(obs), key), atol=1e-6)
+    # Entries added anywhere are matched by name and width, in order; a dropped or resized entry is not.
+    a, b, c = ("a", 2), ("b", 1), ("c", 3)
+    assert warm_start.grown_inputs([a, b], [c, a, ("n", 1), b])[0].tolist() == [-1, -1, -1, 0, 1, -1, 2]
+    assert warm_start.grown_inputs([a, b], [a, c])[0] is None
+    assert warm_start.grown_inputs([a, b], [a, ("b", 2)])[0] is None
+
+
 def test_warm_start_errors_are_one_line_before_anything_is_written(parent, tmp_path, capsys):
     out = tmp_path / "x"
     flags = ["--preset", "tiny", "--out", str(out), "--no-video", "--no-compile-cache"]

@@ -29,10 +29,11 @@ class PointConfig:
     target: float = 1.0
     blow_up_above: float = 2.0  # an action above this overflows the physics (never, by default)
     impl: str = "jax"  # physics (vnl.physics): jax or c
+    observe_target: bool = False  # append the target's position to the observation (a new sensor)
 
 
 class PointMass(Env):
-    """obs = (x − target, v); reward = −|x − target| per step."""
+    """obs = (x − target, v) [+ (target,) with `observe_target`]; reward = −|x − target| per step."""
 
     def __init__(self, config: PointConfig) -> None:
         super().__init__(config, mujoco.MjModel.from_xml_string(XML), n_substeps=2, impl=config.impl)
@@ -53,7 +54,12 @@ class PointMass(Env):
         return state.replace(data=data, obs=self._obs(data), reward=reward, done=blew_up, metrics=metrics)
 
     def _obs(self, data) -> jax.Array:
-        return jp.stack([data.qpos[0] - self.config.target, data.qvel[0]]).astype(jp.float32)
+        parts = [data.qpos[0] - self.config.target, data.qvel[0]]
+        parts += [jp.float32(self.config.target)] if self.config.observe_target else []
+        return jp.stack(parts).astype(jp.float32)
+
+    def observation_layout(self) -> list[tuple[str, int]]:
+        return [("offset", 1), ("velocity", 1)] + ([("target", 1)] if self.config.observe_target else [])
 
 
 def register() -> None:

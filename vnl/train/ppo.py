@@ -85,7 +85,7 @@ def train(
     if config.init.run is not None:
         parent = warm_start.load_parent(config)
         first = config.stage(0) if config.curriculum else config  # the env the parent's networks start in
-        warm_start.check_layout(parent, first.make_env(), config.env)
+        parent = warm_start.check_layout(parent, first.make_env(), config.env)
         config = warm_start.recorded(config, parent)
     distributed.on_lead(lambda: rundir.prepare_run_dir(run_dir, config))
     return Session(config, run_dir, None, say, parent=parent, progress=progress).run(finish)

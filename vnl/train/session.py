@@ -196,6 +196,9 @@ class Session:
         if self.parent is not None:
             state = warm_start.apply(self.loop, state, self.parent, self.config.init.keep_optimizer)
             self.say(f"[vnl] networks and normalizer from {self.parent.run_dir} at step {self.parent.step:,}")
+            if self.parent.new_inputs:
+                added = ", ".join(self.parent.new_inputs)
+                self.say(f"[vnl] new observation entries {added}: zero weights, so the networks begin as the parent's")
         self.loop.compile(state)
         state, record = self._evaluate(state, {}, 0)
         self._save(0, state, record, force=True)

@@ -10,6 +10,14 @@ checkpoint step used (`init.step`) and the hash of the parent's config (`init.co
 The networks must be the same: unless the user sets `network.*`, the child takes the parent's
 network section (`parent_defaults`); any difference in sizes is one `VnlError` naming them,
 before anything compiles.
+
+A new sensor: the child's observation may add entries to the parent's (e.g. `ground_scan` in
+the corridor after learning to run on the floor) when every entry of the parent's layout (name
+and width, `Env.observation_layout`) is in the child's, in the same order. The first layers of the
+policy and value networks get zero weights from the new inputs, and the normalizer treats them
+as mean 0, standard deviation 1 with the parent's sample count (so their statistics barely move:
+suited to inputs of order 1), so the child begins computing exactly the parent's functions and
+learns what the new inputs are worth. Not with `--vision` or `--keep-optimizer`.
 """
 
 from __future__ import annotations
@@ -43,12 +51,17 @@ class Parent:
       config: the parent's TrainConfig.
       arrays: the checkpoint's training state, `.training.*` arrays only (named as in
         `PPOLoop.to_arrays`).
+      input_rows: set by `check_layout` when the child's observation adds entries: for each of
+        the child's inputs, shape (child width,), the parent's input index or -1 for a new one.
+      new_inputs: the added entries, as "name (width)".
     """
 
     run_dir: Path
     step: int
     config: TrainConfig
     arrays: dict[str, np.ndarray]
+    input_rows: np.ndarray | None = None  # a grown observation: each input's parent index, -1 if new
+    new_inputs: tuple[str, ...] = ()
 
     @property
     def config_hash(self) -> str:
@@ -130,18 +143,46 @@ def _show(value: Any) -> str:
     return str(list(value)) if isinstance(value, tuple) else str(value)
 
 
-def check_layout(parent: Parent, env: Any, env_name: str) -> None:
-    """`VnlError` naming the sizes when `env`'s observation or action layout differs from the
-    parent's (checked from shapes; nothing is compiled)."""
+def check_layout(parent: Parent, env: Any, env_name: str) -> Parent:
+    """`parent`, with `input_rows` set when `env`'s observation adds entries to the parent's;
+    `VnlError` naming the sizes when the layouts differ otherwise (checked from shapes and
+    layouts; nothing is compiled)."""
     width, actions = parent.sizes()
     size = env.observation_size
     own = int(size["state"][-1]) if isinstance(size, dict) else int(size)
-    if (width, actions) != (own, env.action_size):
-        raise VnlError(
-            f"cannot start from {parent.run_dir} (step {parent.step:,}, env {parent.config.env}): its networks take "
-            f"observations of width {width} and give {actions} actions, but {env_name} has observations of width "
-            f"{own} and {env.action_size} actions; --init-from needs the same observation and action layout"
-        )
+    if (width, actions) == (own, env.action_size):
+        return parent
+    mismatch = VnlError(
+        f"cannot start from {parent.run_dir} (step {parent.step:,}, env {parent.config.env}): its networks take "
+        f"observations of width {width} and give {actions} actions, but {env_name} has observations of width "
+        f"{own} and {env.action_size} actions; --init-from needs the same observation and action layout "
+        f"(or the parent's observation with entries added)"
+    )
+    if actions != env.action_size or own < width or isinstance(size, dict):
+        raise mismatch
+    rows, new = grown_inputs(parent.config.make_env().observation_layout(), env.observation_layout())
+    if rows is None or int((rows >= 0).sum()) != width:
+        raise mismatch
+    return dataclasses.replace(parent, input_rows=rows, new_inputs=tuple(new))
+
+
+def grown_inputs(theirs: list[tuple[str, int]], ours: list[tuple[str, int]]) -> tuple[np.ndarray | None, list[str]]:
+    """Maps our observation's inputs to theirs when ours adds entries to theirs: (for each of our
+    inputs, shape (our width,), its index in theirs or -1 for an added one; the added entries as
+    "name (width)"), or (None, []) when theirs is not ours with entries added."""
+    rows: list[int] = []
+    new: list[str] = []
+    k, offset = 0, 0
+    for name, n in ours:
+        if k < len(theirs) and theirs[k] == (name, n):
+            rows += range(offset, offset + n)
+            offset, k = offset + n, k + 1
+        else:
+            rows += [-1] * n
+            new.append(f"{name} ({n})")
+    if k < len(theirs):
+        return None, []
+    return np.asarray(rows, dtype=np.int64), new
 
 
 def recorded(config: TrainConfig, parent: Parent) -> TrainConfig:
@@ -152,13 +193,20 @@ def recorded(config: TrainConfig, parent: Parent) -> TrainConfig:
 
 def apply(loop: Any, state: Any, parent: Parent, keep_optimizer: bool) -> Any:
     """`state` (a fresh `LoopState` of `loop`) with the parent's params and normalizer (and Adam
-    state with `keep_optimizer`); the env step count stays 0.
+    state with `keep_optimizer`); the env step count stays 0. With a grown observation
+    (`parent.input_rows`), the first layers' and the normalizer's arrays are widened (`_widen`).
 
     Raises `VnlError` naming the arrays whose shapes differ (the layouts were checked before, so
     this catches anything else, e.g. a different optimizer chain with `keep_optimizer`).
     """
     import jax
 
+    if keep_optimizer and parent.input_rows is not None:
+        raise VnlError(
+            f"cannot keep the optimizer of {parent.run_dir}: this run's observation adds "
+            f"{', '.join(parent.new_inputs)}, and the parent's Adam moments have no entries for them; "
+            "drop --keep-optimizer"
+        )
     training = loop.training(state)
     paths, treedef = jax.tree_util.tree_flatten_with_path(training)
     prefixes = (PARAMS, NORMALIZER) + ((OPTIMIZER,) if keep_optimizer else ())
@@ -169,6 +217,8 @@ def apply(loop: Any, state: Any, parent: Parent, keep_optimizer: bool) -> Any:
             leaves.append(leaf)
             continue
         theirs = parent.arrays.get(name)
+        if theirs is not None and parent.input_rows is not None:
+            theirs = _widen(name, theirs, parent)
         if theirs is None or theirs.shape != np.shape(leaf) or theirs.dtype != np.asarray(leaf).dtype:
             bad.append(f"{name[len('.training.') :]} {None if theirs is None else theirs.shape} vs {np.shape(leaf)}")
             leaves.append(leaf)
@@ -180,3 +230,27 @@ def apply(loop: Any, state: Any, parent: Parent, keep_optimizer: bool) -> Any:
             f"this run ({'; '.join(bad[:3])}{' ...' if len(bad) > 3 else ''})"
         )
     return loop.with_training(state, jax.tree_util.tree_unflatten(treedef, leaves))
+
+
+FIRST_KERNEL = re.compile(r"\.training\.params\.(policy|value)\['params'\]\['hidden_0'\]\['kernel'\]")
+
+
+def _widen(name: str, theirs: np.ndarray, parent: Parent) -> np.ndarray:
+    """The parent's array for the child's wider observation: the first layers' kernels, shape
+    (parent width, units) -> (child width, units), get zero rows for the new inputs; the
+    normalizer's per-input arrays, shape (parent width,) -> (child width,), mean 0, std 1 and a
+    summed variance of `count` (a variance of 1) there. Other arrays are returned as they are."""
+    rows = parent.input_rows
+    assert rows is not None
+    old = rows >= 0
+    field = name[len(NORMALIZER) :] if name.startswith(NORMALIZER) else None
+    if FIRST_KERNEL.fullmatch(name):
+        grown = np.zeros((len(rows),) + theirs.shape[1:], theirs.dtype)
+    elif field in ("mean", "std", "summed_variance"):
+        count = float(parent.arrays[NORMALIZER + "count.hi"]) * 2.0**32 + float(parent.arrays[NORMALIZER + "count.lo"])
+        fill = {"mean": 0.0, "std": 1.0, "summed_variance": count}[field]
+        grown = np.full((len(rows),) + theirs.shape[1:], fill, theirs.dtype)
+    else:
+        return theirs
+    grown[old] = theirs[rows[old]]
+    return grown
