@@ -84,8 +84,14 @@ def test_step_best_loads_the_checkpoint_that_scored_highest(trained_run, tmp_pat
     best = max(records, key=lambda r: r["eval/episode_reward"])["step"]
     p = run("eval", out, "--step", "best", "--episodes", "2", "--steps", "5", "--out", tmp_path / "e.json")
     assert p.returncode == 0, p.stderr
-    assert f"--step best: step {best:,} (eval/episode_reward" in p.stderr
+    assert f"best checkpoint: step {best:,} (eval/episode_reward" in p.stderr
     assert json.loads((tmp_path / "e.json").read_text())["checkpoint_step"] == best
+    # The same checkpoint as `vnl compare RUN_DIR@best`; a bad name is one line.
+    from vnl import compare
+
+    assert compare.parse_source(f"{out}@best").step == best
+    p = run("train", "--resume", out, "--from-step", "bets")
+    assert p.returncode == 2 and p.stderr.startswith("vnl: error:") and "--from-step" in p.stderr
     # `vnl train` names the best checkpoint at the end when it is not the last one.
     assert (f"was at step {best:,}; its checkpoint is kept" in stdout) == (best != max(kept)), stdout
     p = run("eval", out, "--step", "bets")

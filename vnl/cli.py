@@ -167,7 +167,7 @@ def cmd_train(args: argparse.Namespace, gl: str | None) -> int:
         from vnl.train.config import read_config
 
         config = ppo.resume_config(read_config(out), args.set, flags)
-        result = ppo.resume(out, args.from_step, args.set, flags, say=say, finish=finish)
+        result = ppo.resume(out, _chosen_step(out, args.from_step), args.set, flags, say=say, finish=finish)
     else:
         file_values = getattr(args, "config_values", {})
         if args.init_from:  # the parent's networks, unless the file or --set give others
@@ -463,15 +463,11 @@ def _chosen_step(run_dir: str | Path, step: int | str | None) -> int | None:
     the checkpoint that scored highest on the run's `log.keep_best` metric (said on stderr)."""
     if step != "best":
         return step  # type: ignore[return-value]
-    from vnl.io import checkpoint
-    from vnl.train.config import read_config
+    from vnl.policy import best_checkpoint
 
-    metric = read_config(run_dir).log.keep_best or "eval/episode_reward"
-    found = checkpoint.best(run_dir, metric)
-    if found is None:
-        raise VnlError(f"--step best: no checkpoint in {run_dir} recorded {metric}; give a step (--step N)")
-    print(f"[vnl] --step best: step {found[0]:,} ({metric} {found[1]:g})", file=sys.stderr)
-    return found[0]
+    best, metric, value = best_checkpoint(run_dir)
+    print(f"[vnl] best checkpoint: step {best:,} ({metric} {value:g})", file=sys.stderr)
+    return best
 
 
 def _run_dir(path: str, flag: str = "RUN_DIR", config: bool = True) -> None:
@@ -600,7 +596,7 @@ def _view_parser(sub: Any) -> None:
 
 def _compare_parser(sub: Any) -> None:
     p = sub.add_parser("compare", help="representational similarity (CKA, RSA) of networks on the same episodes")
-    p.add_argument("networks", nargs="+", metavar="NETWORK", help="run directory, RUN_DIR@STEP, or a recording")
+    p.add_argument("networks", nargs="+", metavar="NETWORK", help="RUN_DIR, RUN_DIR@STEP|best, or a recording")
     p.add_argument("--recording", help="the episodes every network sees (default: the first recording given, else new)")
     p.add_argument("--episodes", type=_POSITIVE, default=4, help="episodes of a new recording of the first network")
     p.add_argument("--steps", type=_POSITIVE, help="steps per episode of a new recording (default: episode length)")
@@ -615,7 +611,7 @@ def _train_parser(sub: Any) -> None:
     p = sub.add_parser("train", help="train with Brax PPO (or continue a run with --resume)")
     p.add_argument("env", nargs="?", help="environment name (see `vnl list`)")
     p.add_argument("--resume", metavar="RUN_DIR", help="continue this run from its newest good checkpoint")
-    p.add_argument("--from-step", type=_NON_NEGATIVE, help="with --resume: continue from this checkpoint step")
+    p.add_argument("--from-step", type=_step_arg, help="with --resume: continue from this checkpoint step, or `best`")
     p.add_argument("--config", help="YAML file with config values")
     p.add_argument(
         "--set",

@@ -229,8 +229,10 @@ class Source:
 
 
 def parse_source(text: str) -> Source:
-    """`RUN_DIR`, `RUN_DIR@STEP` (a checkpoint) or a recording file written by `vnl record`."""
+    """`RUN_DIR`, `RUN_DIR@STEP` (a checkpoint; `@best`: `vnl.policy.best_checkpoint`) or a
+    recording file written by `vnl record`."""
     from vnl.analysis import open_recording
+    from vnl.policy import best_checkpoint
 
     path = Path(text)
     if path.is_file():
@@ -238,12 +240,14 @@ def parse_source(text: str) -> Source:
         if "run_dir" not in ds.attrs:
             raise VnlError(f"{path} does not say which run it recorded (no run_dir attribute); is it a vnl recording?")
         return Source(Path(ds.attrs["run_dir"]), int(ds.attrs["checkpoint_step"]), path)
-    step = None
+    step: int | None = None
     if "@" in path.name and not path.is_dir():
         name, _, number = path.name.rpartition("@")
-        if not number.isdigit():
-            raise VnlError(f"{text}: expected RUN_DIR@STEP with a checkpoint step, e.g. runs/a@4096")
-        path, step = path.with_name(name), int(number)
+        if not (number.isdigit() or number == "best"):
+            raise VnlError(f"{text}: expected RUN_DIR@STEP with a checkpoint step or `best`, e.g. runs/a@4096")
+        path = path.with_name(name)
+        if path.is_dir():
+            step = best_checkpoint(path)[0] if number == "best" else int(number)
     if not path.is_dir():
         raise VnlError(f"{text} is neither a run directory nor a recording file")
     available = checkpoint.steps(path)

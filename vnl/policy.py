@@ -72,6 +72,17 @@ def load_run(run_dir: str | Path, deterministic: bool = True, step: int | None =
     return LoadedRun(Path(run_dir), config, env, policy, loaded_step, params)
 
 
+def best_checkpoint(run_dir: str | Path) -> tuple[int, str, float]:
+    """(step, metric, value) of the run's kept checkpoint that scored highest on the run's
+    `log.keep_best` metric (`eval/episode_reward` when that is off): what `--step best` and
+    `RUN_DIR@best` choose. `VnlError` when no checkpoint recorded the metric."""
+    metric = read_config(run_dir).log.keep_best or "eval/episode_reward"
+    found = checkpoint.best(run_dir, metric)
+    if found is None:
+        raise VnlError(f"no checkpoint in {run_dir} recorded {metric}, so none is best; give a checkpoint step")
+    return found[0], metric, found[1]
+
+
 def load_policy(run_dir: str | Path, deterministic: bool = True, step: int | None = None) -> Policy:
     """The policy of a trained run: `policy(obs, rng) -> action`.
 
