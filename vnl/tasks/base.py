@@ -338,9 +338,13 @@ class WalkerTask(Env):
         lin = lin + jp.cross(ang, data.xpos[r] - data.subtree_com[self._body_rootid[r]])
         return rot.T @ lin, rot.T @ ang
 
+    def upright_cosine(self, data: mjx.Data) -> jax.Array:
+        """The cosine of the root body's tilt: its z-axis · world z (1 upright, 0 on its side), a scalar."""
+        return data.xmat[self._root, 2, 2]
+
     def is_upright(self, data: mjx.Data) -> jax.Array:
         """1.0 when the root body's z-axis is within 45° of vertical (the `upright_time` measure)."""
-        return (data.xmat[self._root, 2, 2] >= UPRIGHT_COS).astype(jp.float32)
+        return (self.upright_cosine(data) >= UPRIGHT_COS).astype(jp.float32)
 
     def egocentric(self, data: mjx.Data, points: jax.Array) -> jax.Array:
         """World points (n, 3) -> the root body's frame, shape (n, 3)."""

@@ -284,8 +284,7 @@ class Run(WalkerTask):
         cfg: RunConfig = self._config
         z = data.xpos[self._root, 2]
         lo, hi = cfg.healthy_z_range
-        upright = data.xmat[self._root, 2, 2]  # world-z component of the body's z-axis
-        ok = (z >= lo) & (z <= hi) & (upright >= cfg.healthy_min_upright)
+        ok = (z >= lo) & (z <= hi) & (self.upright_cosine(data) >= cfg.healthy_min_upright)
         return ok.astype(jp.float32)
 
     def observation_layout(self) -> list[tuple[str, int]]:

@@ -236,7 +236,7 @@ class RunGaps(WalkerTask):
         if cfg.terminate_root_below is not None:
             low = low | (data.xpos[self._root, 2] < cfg.terminate_root_below)
         if cfg.healthy_min_upright is not None:
-            low = low | (data.xmat[self._root, 2, 2] < cfg.healthy_min_upright)
+            low = low | (self.upright_cosine(data) < cfg.healthy_min_upright)
         if cfg.contact_termination and len(self._nonfoot) and data.contact.geom1.shape[0]:
             c = data.contact
             g1, g2 = c.geom1, c.geom2
