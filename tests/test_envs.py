@@ -447,6 +447,11 @@ def test_run_gaps_tilt_check_and_healthy_bonus():
     for bad in ({"healthy_min_upright": 1.5}, {"healthy_reward": -1.0}):
         with pytest.raises(VnlError, match=next(iter(bad))):
             vnl.make("rodent_run_gaps", impl="c", **bad)
+    # One range check for both tasks, each naming how its check is turned off.
+    with pytest.raises(VnlError, match=r"healthy_min_upright .*null: no check"):
+        vnl.make("rodent_run_gaps", healthy_min_upright=-1.5)
+    with pytest.raises(VnlError, match=r"healthy_min_upright .*-1: no check"):
+        vnl.make("rodent_run", healthy_min_upright=1.5)
 
 
 @pytest.mark.xdist_group("user_walker")

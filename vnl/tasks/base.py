@@ -87,6 +87,13 @@ class WalkerTaskConfig:
             )
 
 
+def check_upright_cosine(value: float | None, off: str) -> None:
+    """Raises `VnlError` unless `healthy_min_upright` (the cosine of the largest tilt the episode
+    allows) is in [-1, 1]; `off` says how the check is turned off for this task."""
+    if value is not None and not -1.0 <= value <= 1.0:
+        raise VnlError(f"healthy_min_upright must be the cosine of the largest tilt, in [-1, 1] ({off}); got {value}")
+
+
 def check_warp_available() -> None:
     """Raises `VnlError` (with the fix) unless MJX's Warp implementation can run here."""
     import importlib.util

@@ -31,7 +31,14 @@ from vnl.arenas import floor
 from vnl.env import State
 from vnl.errors import VnlError
 from vnl.physics import mjx_physics
-from vnl.tasks.base import WalkerTask, WalkerTaskConfig, build_walker, compile_world, spawn_height
+from vnl.tasks.base import (
+    WalkerTask,
+    WalkerTaskConfig,
+    build_walker,
+    check_upright_cosine,
+    compile_world,
+    spawn_height,
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -76,8 +83,7 @@ class RunConfig(WalkerTaskConfig):
             raise VnlError(f"healthy_z_range must be (low, high) with low < high, got {(lo, hi)}")
         if self.ctrl_cost_weight < 0:
             raise VnlError(f"ctrl_cost_weight must be >= 0, got {self.ctrl_cost_weight}")
-        if not -1.0 <= self.healthy_min_upright <= 1.0:
-            raise VnlError(f"healthy_min_upright must be in [-1, 1], got {self.healthy_min_upright}")
+        check_upright_cosine(self.healthy_min_upright, off="-1: no check")
         if self.forward_velocity_cap is not None and not self.forward_velocity_cap > 0:
             raise VnlError(f"forward_velocity_cap must be > 0 m/s (null: no cap), got {self.forward_velocity_cap}")
         if self.floor_size <= 0:

@@ -36,7 +36,14 @@ from vnl import rewards
 from vnl.arenas import gaps
 from vnl.env import State
 from vnl.errors import VnlError
-from vnl.tasks.base import WalkerTask, WalkerTaskConfig, build_walker, compile_world, spawn_height
+from vnl.tasks.base import (
+    WalkerTask,
+    WalkerTaskConfig,
+    build_walker,
+    check_upright_cosine,
+    compile_world,
+    spawn_height,
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -105,11 +112,7 @@ class RunGapsConfig(WalkerTaskConfig):
             )
         if self.terminate_root_below is not None and not np.isfinite(self.terminate_root_below):
             raise VnlError(f"terminate_root_below must be a height in metres or null, got {self.terminate_root_below}")
-        if self.healthy_min_upright is not None and not -1.0 <= self.healthy_min_upright <= 1.0:
-            raise VnlError(
-                f"healthy_min_upright must be the cosine of the largest tilt, in [-1, 1], or null; "
-                f"got {self.healthy_min_upright}"
-            )
+        check_upright_cosine(self.healthy_min_upright, off="null: no check")
         if not (np.isfinite(self.healthy_reward) and self.healthy_reward >= 0):
             raise VnlError(f"healthy_reward must be >= 0, got {self.healthy_reward}")
         if any(not np.isfinite(d) for d in self.ground_scan):
