@@ -374,6 +374,33 @@ def test_walker_falling_into_a_gap_is_detected():
     assert float(e.failed(mjx.put_data(m, d))) == 1.0
 
 
+def test_ant_foot_in_a_gap_fails_with_terminate_foot_below():
+    """`feet_lowest` is the lowest point of the feet's capsules: an ant settled on a platform (1 s of
+    MuJoCo C, no action) rests its feet on the top (z = 0, within the contacts' 5-mm penetration);
+    with its front feet over a 0.45-m gap they hang into it, below -0.3 m, a failure with
+    `terminate_foot_below=-0.05` and none without (its feet stay above `terminate_at_height`)."""
+    strict, default = vnl.make("ant_run_gaps", terminate_foot_below=-0.05), vnl.make("ant_run_gaps")
+    m, p = strict.mj_model, strict.corridor
+    start = np.full(p.max_platforms, np.inf, np.float32)
+    length = np.full(p.max_platforms, 2.0, np.float32)
+    start[:4], length[0] = [0.0, 15.0, 17.45, 19.9], 15.0  # a gap of 0.45 m after 17 m
+    layout = gaps.Layout(start=jp.asarray(start), length=jp.asarray(length))
+    seen = {}
+    for where, x in (("platform", 16.0), ("gap", 16.5)):  # the front feet reach ~0.65 m ahead
+        d = mujoco.MjData(m)
+        d.qpos[:] = m.qpos0
+        d.qpos[0] = x
+        d.mocap_pos[:] = np.asarray(gaps.place_window(layout, jp.float32(x), p))
+        for _ in range(int(1.0 / m.opt.timestep)):
+            mujoco.mj_step(m, d)
+        data = mjx.put_data(m, d)
+        seen[where] = float(strict.feet_lowest(data)), float(strict.failed(data)), float(default.failed(data))
+    assert -0.005 < seen["platform"][0] <= 0.0 and seen["platform"][1:] == (0.0, 0.0), seen
+    assert seen["gap"][0] < -0.3 and seen["gap"][1:] == (1.0, 0.0), seen
+    with pytest.raises(VnlError, match="terminate_foot_below"):
+        vnl.make("ant_run_gaps", terminate_foot_below=float("inf"))
+
+
 def test_ant_wedged_in_a_gap_fails_with_terminate_root_below():
     """The ant's torso (a sphere of radius 0.25 m) over a 0.45-m gap wedges between the platforms'
     edges with its centre below 0.2 m, where its feet stay above `terminate_at_height`: a failure

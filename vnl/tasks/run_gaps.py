@@ -11,7 +11,8 @@ Reward (`metrics["reward/velocity"]` + `metrics["reward/healthy"]`):
 
 The episode fails (done) when an end effector (or, for walkers without any, the root body)
 drops below `terminate_at_height` (a fall into a gap or off the corridor), when the root body
-drops below `terminate_root_below` (if set: the ant's torso wedged in a gap), when the root body
+drops below `terminate_root_below` (if set: the ant's torso wedged in a gap), when a foot's lowest
+point drops below `terminate_foot_below` (if set: a foot stepping into a gap), when the root body
 tilts further from upright than `healthy_min_upright` allows (if set), when a non-foot geom
 touches a platform and `contact_termination` is on, or when the physics blows up. Every
 `reset(rng)` draws a new platform/gap layout (`vnl.arenas.gaps`), different in every vmapped
@@ -29,6 +30,7 @@ from typing import Literal
 
 import jax
 import jax.numpy as jp
+import mujoco
 import numpy as np
 from mujoco import mjx
 
@@ -65,6 +67,11 @@ class RunGapsConfig(WalkerTaskConfig):
     # centre below 0.2 m and its feet on the platforms, above `terminate_at_height`; without this
     # it flailed there for the rest of the episode (frames: README, Results).
     terminate_root_below: float | None = None
+    # The episode also fails when the lowest point of an end effector's colliding geoms drops below
+    # this height (m; the platforms' top is 0; None: never): a foot stepping into a gap. The ant's
+    # legs cannot lift a lower leg that hangs in a gap out over the edge without raising the torso on
+    # the other three; stepping in trapped it there for the rest of the episode (frames: README).
+    terminate_foot_below: float | None = None
     # The episode also fails when the root body's z-axis points up by less than this (the cosine of
     # the largest tilt, as rodent_run's check; None: never). dm_control's task has no such check,
     # and with MuJoCo C (no contact termination) the rat fell onto its side at once and learned to
@@ -110,8 +117,10 @@ class RunGapsConfig(WalkerTaskConfig):
                 "contact_termination reads MJX's contact list, which MuJoCo C physics does not return; "
                 "use impl: jax with contact_termination, or turn it off"
             )
-        if self.terminate_root_below is not None and not np.isfinite(self.terminate_root_below):
-            raise VnlError(f"terminate_root_below must be a height in metres or null, got {self.terminate_root_below}")
+        for key in ("terminate_root_below", "terminate_foot_below"):
+            value = getattr(self, key)
+            if value is not None and not np.isfinite(value):
+                raise VnlError(f"{key} must be a height in metres or null, got {value}")
         check_upright_cosine(self.healthy_min_upright, off="null: no check")
         if not (np.isfinite(self.healthy_reward) and self.healthy_reward >= 0):
             raise VnlError(f"healthy_reward must be >= 0, got {self.healthy_reward}")
@@ -169,6 +178,10 @@ class RunGaps(WalkerTask):
         walker_bodies = set(self._walker_bodies.tolist())
         walker_geoms = [g for g in range(model.ngeom) if model.geom_bodyid[g] in walker_bodies]
         self._nonfoot = np.asarray([g for g in walker_geoms if model.geom_bodyid[g] not in feet_bodies], dtype=int)
+        feet = sorted(feet_bodies) if len(self._ends) else [self._root]
+        self._feet = _FootGeoms.of(model, feet)
+        if config.terminate_foot_below is not None and not len(self._feet.ids):
+            raise VnlError("terminate_foot_below: the walker's end effectors have no colliding geoms; use null")
         self._ground = np.asarray(
             [g for g in range(model.ngeom) if model.body(model.geom_bodyid[g]).name.startswith("platform_")], dtype=int
         )
@@ -238,6 +251,8 @@ class RunGaps(WalkerTask):
         low = jp.any(data.xpos[self._low_bodies, 2] < cfg.terminate_at_height)
         if cfg.terminate_root_below is not None:
             low = low | (data.xpos[self._root, 2] < cfg.terminate_root_below)
+        if cfg.terminate_foot_below is not None:
+            low = low | (self.feet_lowest(data) < cfg.terminate_foot_below)
         if cfg.healthy_min_upright is not None:
             low = low | (self.upright_cosine(data) < cfg.healthy_min_upright)
         if cfg.contact_termination and len(self._nonfoot) and data.contact.geom1.shape[0]:
@@ -248,6 +263,14 @@ class RunGaps(WalkerTask):
             )
             low = low | jp.any(bad & (c.dist < 0))
         return low.astype(jp.float32)
+
+    def feet_lowest(self, data: mjx.Data) -> jax.Array:
+        """The height (m) of the lowest point of the end effectors' colliding geoms, a scalar
+        (walkers without end effectors: the root body's geoms)."""
+        f = self._feet
+        axis_z = jp.abs(data.geom_xmat[f.ids, 2, 2])  # the geom's z-axis (a capsule's axis) · world z
+        reach = jp.where(f.capsule, axis_z * f.half_length + f.radius, f.rbound)
+        return jp.min(data.geom_xpos[f.ids, 2] - reach)
 
     def _obs(self, data: mjx.Data, layout: gaps.Layout) -> jax.Array:
         """Proprioception (+ `corridor` with `observe_corridor`, + `ground_ahead` with
@@ -271,3 +294,29 @@ class RunGaps(WalkerTask):
     @property
     def corridor(self) -> gaps.GapsParams:
         return self._params
+
+
+@dataclasses.dataclass(frozen=True)
+class _FootGeoms:
+    """The colliding geoms of some bodies, with what `RunGaps.feet_lowest` needs: capsules (and
+    spheres, capsules of no length) reach |axis_z| x half-length + radius below their centre;
+    other shapes are bounded by their bounding sphere (`geom_rbound`), a lower bound."""
+
+    ids: np.ndarray
+    capsule: np.ndarray
+    half_length: np.ndarray
+    radius: np.ndarray
+    rbound: np.ndarray
+
+    @staticmethod
+    def of(model: mujoco.MjModel, bodies: list[int]) -> _FootGeoms:
+        ids = [
+            g
+            for g in range(model.ngeom)
+            if model.geom_bodyid[g] in bodies and (model.geom_contype[g] or model.geom_conaffinity[g])
+        ]
+        ids_ = np.asarray(ids, dtype=int)
+        kind = model.geom_type[ids_]
+        capsule = (kind == mujoco.mjtGeom.mjGEOM_CAPSULE) | (kind == mujoco.mjtGeom.mjGEOM_SPHERE)
+        half = np.where(kind == mujoco.mjtGeom.mjGEOM_CAPSULE, model.geom_size[ids_, 1], 0.0)
+        return _FootGeoms(ids_, capsule, half.astype(np.float32), model.geom_size[ids_, 0], model.geom_rbound[ids_])
