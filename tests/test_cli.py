@@ -75,6 +75,39 @@ def test_eval_prints_table_and_writes_json(trained_run, tmp_path):
         assert set(summary[key]) == {"mean", "std"}, key
         assert key in p.stdout
     assert 1 <= summary["episode_length"]["mean"] <= 20
+    assert summary["env_set"] == []
+
+
+def test_eval_on_a_variant_of_the_task(trained_run, tmp_path):
+    """`--set env_config.*` evaluates the run's policy on a variant of its task (here without the
+    healthy bonus: that reward term is 0, the others as before); other keys, and a variant whose
+    observation the policy cannot read, are one-line errors."""
+    out, _ = trained_run
+    p = run(
+        "eval",
+        out,
+        "--episodes",
+        "2",
+        "--steps",
+        "10",
+        "--set",
+        "env_config.healthy_reward=0",
+        "--out",
+        tmp_path / "v.json",
+    )
+    assert p.returncode == 0, p.stderr
+    summary = json.loads((tmp_path / "v.json").read_text())
+    assert summary["env_set"] == ["env_config.healthy_reward=0"] and "with env_config.healthy_reward=0" in p.stdout
+    assert summary["episode_reward/healthy"]["mean"] == 0.0 and summary["episode_length"]["mean"] >= 1
+    assert summary["episode_reward/ctrl_cost"]["mean"] != 0.0
+    for bad, says in (
+        ("ppo.learning_rate=1", "env_config.* keys"),
+        ("env_config.observation=proprioception", "changes ant_run's observation to width"),
+    ):
+        p = run("eval", out, "--set", bad)
+        errors = [line for line in p.stderr.splitlines() if line.startswith("vnl: error:")]
+        assert p.returncode == 2 and len(errors) == 1 and says in errors[0], p.stderr
+        assert "Traceback" not in p.stderr
 
 
 def test_step_best_loads_the_checkpoint_that_scored_highest(trained_run, tmp_path):

@@ -246,7 +246,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     from vnl.policy import load_run
     from vnl.rollout import rollout, summarize
 
-    run = load_run(args.run_dir, step=_chosen_step(args.run_dir, args.step))
+    run = load_run(args.run_dir, step=_chosen_step(args.run_dir, args.step), env_set=args.set)
     steps = args.steps or run.config.episode_length()
     r = rollout(run.env, run.policy, jax.random.PRNGKey(args.seed), args.episodes, steps)
     summary = {
@@ -254,11 +254,13 @@ def cmd_eval(args: argparse.Namespace) -> int:
         "env": run.config.env,
         "checkpoint_step": run.step,
         "max_steps": steps,
+        "env_set": args.set,
         **summarize(r, run.env.dt),
     }
     out = Path(args.out) if args.out else run.run_dir / "eval.json"
     out.write_text(json.dumps(summary, indent=2))
-    print(f"{run.config.env} @ step {run.step:,}: {args.episodes} episodes of up to {steps} steps")
+    variant = f" with {' '.join(args.set)}" if args.set else ""
+    print(f"{run.config.env}{variant} @ step {run.step:,}: {args.episodes} episodes of up to {steps} steps")
     print(f"{'quantity':<28} {'mean':>12} {'std':>12}")
     for k, v in summary.items():
         if isinstance(v, dict):
@@ -287,7 +289,7 @@ def cmd_render(args: argparse.Namespace, gl: str | None) -> int:
     from vnl.policy import load_run
     from vnl.rollout import policy_video
 
-    run = load_run(args.run_dir, step=_chosen_step(args.run_dir, args.step))
+    run = load_run(args.run_dir, step=_chosen_step(args.run_dir, args.step), env_set=args.set)
     name = f"render_{args.camera or 'side'}.mp4".replace("/", "_")
     out = args.out or str(run.run_dir / name)
     path, n = policy_video(run.env, run.policy, out, args.camera, args.steps, args.width, args.height, args.seed)
@@ -308,7 +310,7 @@ def cmd_record(args: argparse.Namespace) -> int:
     from vnl import record
     from vnl.policy import load_run
 
-    run = load_run(args.run_dir, step=_chosen_step(args.run_dir, args.step))
+    run = load_run(args.run_dir, step=_chosen_step(args.run_dir, args.step), env_set=args.set)
     steps = args.steps or run.config.episode_length()
     ds = record.record(run, args.episodes, steps, args.seed, deterministic=not args.stochastic)
     out = record.write(ds, args.out or run.run_dir / "record.nc")
@@ -607,6 +609,16 @@ def _compare_parser(sub: Any) -> None:
     _cache_flags(p)
 
 
+def _task_variant_flag(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="env_config.KEY=VALUE",
+        help="run the policy on a variant of its task, e.g. --set env_config.healthy_reward=0 (repeatable)",
+    )
+
+
 def _train_parser(sub: Any) -> None:
     p = sub.add_parser("train", help="train with Brax PPO (or continue a run with --resume)")
     p.add_argument("env", nargs="?", help="environment name (see `vnl list`)")
@@ -652,6 +664,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--step", type=_step_arg, help="checkpoint step, or `best` (log.keep_best) (default: newest)")
     p.add_argument("--seed", type=_NON_NEGATIVE, default=0)
     p.add_argument("--out", help="JSON file (default <run_dir>/eval.json)")
+    _task_variant_flag(p)
     _cache_flags(p)
 
     p = sub.add_parser("render", help="video of a trained policy")
@@ -665,6 +678,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=_NON_NEGATIVE, default=0)
     p.add_argument("--list-cameras", action="store_true", help="list the model's named cameras")
     p.add_argument("--env", help="with --list-cameras and no RUN_DIR: the environment")
+    _task_variant_flag(p)
     _cache_flags(p)
 
     p = sub.add_parser("plot", help="learning curves of one or several runs on one PNG")
@@ -684,6 +698,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--stochastic", action="store_true", help="sample actions instead of the mean action")
     p.add_argument("--out", help="NetCDF file (default <run_dir>/record.nc)")
     p.add_argument("--viewer", action="store_true", help="also write episode 0 as a Rerun recording (.rrd) beside it")
+    _task_variant_flag(p)
     _cache_flags(p)
     _view_parser(sub)
     _compare_parser(sub)

@@ -12,7 +12,7 @@ import jax
 from vnl.env import Env
 from vnl.errors import VnlError
 from vnl.io import checkpoint
-from vnl.train.config import TrainConfig, read_config
+from vnl.train.config import TrainConfig, read_config, task_variant
 from vnl.train.networks import make_network
 
 Policy = Callable[[jax.Array, jax.Array], jax.Array]
@@ -46,9 +46,14 @@ def make_policy_fn(config: TrainConfig, env: Env, params: Any, deterministic: bo
     return policy
 
 
-def load_run(run_dir: str | Path, deterministic: bool = True, step: int | None = None) -> LoadedRun:
-    """Reads config.yaml and the newest readable (or the given) checkpoint of `run_dir`."""
+def load_run(
+    run_dir: str | Path, deterministic: bool = True, step: int | None = None, env_set: list[str] | None = None
+) -> LoadedRun:
+    """Reads config.yaml and the newest readable (or the given) checkpoint of `run_dir`; with
+    `env_set` (`env_config.KEY=VALUE` strings) the env is that variant of the run's task."""
     config = read_config(run_dir)
+    if env_set:
+        config = task_variant(config, env_set)
     loaded_step, params = checkpoint.load(run_dir, step)
     env = config.make_env()
     expected = env.observation_size
@@ -63,6 +68,11 @@ def load_run(run_dir: str | Path, deterministic: bool = True, step: int | None =
     if not config.ppo.normalize_observations:
         got = state_size
     expected = state_size
+    if got != expected and env_set:
+        raise VnlError(
+            f"--set {' '.join(env_set)} changes {config.env}'s observation to width {expected}, and the "
+            f"policy of {run_dir} reads {got}; evaluate on a variant with the same observation"
+        )
     if got != expected:
         raise VnlError(
             f"checkpoint of {run_dir} expects observations of width {got}, but {config.env} "

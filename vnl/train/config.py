@@ -449,6 +449,22 @@ def resume_config(saved: TrainConfig, assignments: list[str] | None, flags: dict
     return new
 
 
+def task_variant(saved: TrainConfig, assignments: list[str]) -> TrainConfig:
+    """`saved` with `env_config.*` assignments (`--set KEY=VALUE` of `vnl eval`, `render` and
+    `record`): the trained policy on a variant of its task, e.g. without a training-only
+    termination or on longer gaps. Anything else would not be the run's policy: refused."""
+    values = config_lib.to_dict(saved)
+    for text in assignments:
+        key = text.split("=", 1)[0].strip()
+        if not key.startswith("env_config."):
+            raise VnlError(
+                f"--set {key}: a trained run can only be evaluated on a variant of its task, so --set takes "
+                "env_config.* keys here (e.g. --set env_config.terminate_root_below=null)"
+            )
+        values = config_lib.merge(values, config_lib.parse_assignment(text))
+    return config_lib.from_dict(TrainConfig, values)
+
+
 def _flatten(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
     out: dict[str, Any] = {}
     for k, v in d.items():
