@@ -263,6 +263,24 @@ def test_curriculum_resumes_exactly_at_any_stage(staged, tmp_path, step):
     assert untimed(metrics_io.read(copy / "metrics.jsonl")) == untimed(metrics_io.read(out / "metrics.jsonl"))
 
 
+def test_a_resumed_curriculum_run_given_more_steps_extends_its_last_stage(staged, tmp_path):
+    """`vnl train --resume RUN --steps N` on a curriculum run: the last stage trains on to N (its
+    env: 40-step episodes), and the saved config's stages add up to N; fewer steps than the last
+    stage's start is one line."""
+    out, _ = staged
+    copy = tmp_path / "longer"
+    shutil.copytree(out, copy)
+    ppo.resume(copy, flags={"ppo": {"num_timesteps": 3 * K}}, say=quiet)
+    records = metrics_io.read(copy / "metrics.jsonl")
+    assert untimed(records[:5]) == untimed(metrics_io.read(out / "metrics.jsonl"))
+    assert [r["step"] for r in records[5:]] == [5 * 512, 6 * 512]
+    assert [(r["curriculum/stage"], r["eval/avg_episode_length"]) for r in records[5:]] == [(1, 40), (1, 40)]
+    saved = yaml.safe_load((copy / "config.yaml").read_text())
+    assert [s["steps"] for s in saved["curriculum"]] == [K, 2 * K] and saved["ppo"]["num_timesteps"] == 3 * K
+    with pytest.raises(VnlError, match="ends before the curriculum's last stage starts"):
+        ppo.resume(copy, flags={"ppo": {"num_timesteps": 512}}, say=quiet)
+
+
 def test_curriculum_config_errors_name_the_problem(staged):
     with pytest.raises(VnlError, match=r"sum of its stages' steps \(2,048\).*ppo.num_timesteps is 5,000"):
         train_config.build("test_point", "tiny", file_values=CURRICULUM, flags={"ppo": {"num_timesteps": 5000}})

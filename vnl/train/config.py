@@ -427,7 +427,7 @@ batched stepping is bit-identical at any thread count)."""
 
 def resume_config(saved: TrainConfig, assignments: list[str] | None, flags: dict[str, Any] | None) -> TrainConfig:
     """`saved` with `--set`/flag changes applied; only total steps, `log.*` and
-    `env_config.threads` may change.
+    `env_config.threads` may change. With a curriculum, a new total changes its last stage's steps.
 
     Anything else (env, network, PPO hyperparameters, seed) would make the continued run a
     different experiment, so it is refused with the list of offending keys.
@@ -436,9 +436,14 @@ def resume_config(saved: TrainConfig, assignments: list[str] | None, flags: dict
     for text in assignments or []:
         values = config_lib.merge(values, config_lib.parse_assignment(text))
     values = config_lib.merge(values, flags or {})
+    _extend_last_stage(values, saved)
     new = config_lib.from_dict(TrainConfig, values)
     before, after = _flatten(config_lib.to_dict(saved)), _flatten(config_lib.to_dict(new))
     changed = sorted(k for k in set(before) | set(after) if before.get(k) != after.get(k))
+    if saved.curriculum and new.curriculum:
+        followed = (*saved.curriculum[:-1], dataclasses.replace(saved.curriculum[-1], steps=new.curriculum[-1].steps))
+        if new.curriculum == followed:
+            changed = [k for k in changed if k != "curriculum"]  # the last stage follows --steps
     unsafe = [k for k in changed if not k.startswith(SAFE_TO_CHANGE_ON_RESUME)]
     if unsafe:
         detail = ", ".join(f"{k}: {before.get(k)!r} -> {after.get(k)!r}" for k in unsafe)
@@ -447,6 +452,22 @@ def resume_config(saved: TrainConfig, assignments: list[str] | None, flags: dict
             "(--steps), log.* settings and env_config.threads. Start a new run for a different configuration."
         )
     return new
+
+
+def _extend_last_stage(values: dict[str, Any], saved: TrainConfig) -> None:
+    """A resumed curriculum run with a new length (`--steps`) changes its last stage's steps by as
+    much, in `values` (a config dict), so that the stages still add up to the run's length."""
+    stages = values.get("curriculum") or []
+    added = values["ppo"]["num_timesteps"] - saved.ppo.num_timesteps
+    if not stages or not added or stages != config_lib.to_dict(saved)["curriculum"]:
+        return
+    last = stages[-1]["steps"] + added
+    if last < 1:
+        raise VnlError(
+            f"--steps {values['ppo']['num_timesteps']:,} ends before the curriculum's last stage starts "
+            f"(step {saved.ppo.num_timesteps - stages[-1]['steps']:,}); give more steps"
+        )
+    stages[-1] = {**stages[-1], "steps": last}
 
 
 def task_variant(saved: TrainConfig, assignments: list[str]) -> TrainConfig:
