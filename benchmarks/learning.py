@@ -123,6 +123,8 @@ def main() -> None:
     args = parser.parse_args()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    # Earlier invocations' tables (other seeds, other settings) stay: this one's is added after them.
+    before = (out / "learning.md").read_text() if (out / "learning.md").is_file() else ""
     lines = [f"Preset `{args.preset}`" + (f", `--set {' '.join(args.set)}`" if args.set else "") + ".", ""]
     for env in args.envs:
         dirs = [out / f"{env}-s{seed}" for seed in args.seeds]
@@ -130,7 +132,7 @@ def main() -> None:
             train(run, env, seed, args)
         curves(env, dirs, out)
         lines += table(env, {seed: records(run) for seed, run in zip(args.seeds, dirs, strict=True)}) + [""]
-        (out / "learning.md").write_text("\n".join(lines))
+        (out / "learning.md").write_text(before + ("\n" if before else "") + "\n".join(lines))
     print("\n".join(lines))
     print(f"[learning] wrote {out / 'learning.md'}")
 

@@ -1,5 +1,5 @@
 """benchmarks/learning.py at a tiny scale: the runs, the table (with the spread over seeds), the
-curves, and a second invocation that skips the finished runs."""
+curves, and a second invocation that skips the finished runs and keeps the first one's table."""
 
 import json
 import subprocess
@@ -33,3 +33,5 @@ def test_learning_benchmark_tabulates_untrained_and_trained_runs(tmp_path):
         assert (out / png).stat().st_size > 10_000, png
     again = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=300)
     assert again.returncode == 0 and again.stdout.count("finished; skipping") == 2, again.stdout[-2000:]
+    # A second invocation adds its table after the first one's, which stays.
+    assert (out / "learning.md").read_text() == table + "\n" + table
