@@ -122,6 +122,18 @@ def test_rotation_keeps_the_best_evaluated_checkpoint(tmp_path):
     assert checkpoint.steps(tmp_path) == [5, 6]
 
 
+def test_the_best_checkpoint_of_a_curriculum_run_is_from_its_latest_stage(tmp_path):
+    """Stages evaluate different tasks (the gapless corridor's reward is not the gaps'): only the
+    latest stage's checkpoints compete for best, and the earlier stage's best is rotated out."""
+    for step, (stage, reward) in enumerate([(0, 50.0), (0, 60.0), (1, 5.0), (1, 8.0), (1, 3.0), (1, 2.0)]):
+        meta = {"record": {"step": step, "eval/episode_reward": reward, "curriculum/stage": stage}}
+        checkpoint.save(tmp_path, step, PARAMS, 2, {"x": np.zeros(2)}, meta, keep_best="eval/episode_reward")
+        if step == 2:
+            assert checkpoint.best(tmp_path) == (2, 5.0)
+    assert checkpoint.best(tmp_path) == (3, 8.0)
+    assert checkpoint.steps(tmp_path) == [3, 4, 5]
+
+
 def test_leftovers_of_a_killed_write_are_removed_and_never_loaded(tmp_path):
     _save(tmp_path, 1, 1)
     root = checkpoint.checkpoint_dir(tmp_path)

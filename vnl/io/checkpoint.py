@@ -182,21 +182,38 @@ def steps(run_dir: str | Path) -> list[int]:
     return sorted(found)
 
 
+def _record(run_dir: str | Path, step: int) -> dict[str, Any]:
+    """The evaluation record saved with checkpoint `step` (its meta.json); {} when unreadable."""
+    try:
+        with open(step_dir(run_dir, step) / META) as f:
+            record = json.load(f).get("record", {})
+    except (OSError, ValueError, AttributeError):
+        return {}
+    return record if isinstance(record, dict) else {}
+
+
+def _finite(value: Any) -> float | None:
+    return float(value) if isinstance(value, int | float) and np.isfinite(value) else None
+
+
 def recorded(run_dir: str | Path, step: int, metric: str) -> float | None:
     """The value of `metric` in the evaluation record of checkpoint `step` (its meta.json); None
     when the checkpoint has no such finite value (or its meta is unreadable)."""
-    try:
-        with open(step_dir(run_dir, step) / META) as f:
-            value = json.load(f).get("record", {}).get(metric)
-    except (OSError, ValueError, AttributeError):
-        return None
-    return float(value) if isinstance(value, int | float) and np.isfinite(value) else None
+    return _finite(_record(run_dir, step).get(metric))
 
 
 def best(run_dir: str | Path, metric: str = "eval/episode_reward") -> tuple[int, float] | None:
     """(step, value) of the checkpoint whose evaluation scored highest on `metric` (the earliest
-    of equals); None when no checkpoint in `run_dir` recorded it."""
-    scored = [(value, -s) for s in steps(run_dir) if (value := recorded(run_dir, s, metric)) is not None]
+    of equals); None when no checkpoint in `run_dir` recorded it. In a curriculum run only the
+    checkpoints of the latest stage reached compete: earlier stages evaluated another task (the
+    gapless corridor's reward is not the gaps')."""
+    records = {s: _record(run_dir, s) for s in steps(run_dir)}
+    stage = max((r.get("curriculum/stage", 0) for r in records.values()), default=0)
+    scored = [
+        (value, -s)
+        for s, r in records.items()
+        if r.get("curriculum/stage", 0) == stage and (value := _finite(r.get(metric))) is not None
+    ]
     if not scored:
         return None
     value, step = max(scored)
