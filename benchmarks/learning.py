@@ -7,7 +7,8 @@ reward and the env's task measures, env steps, wall minutes of the run (compiles
 included) and training env steps/s. With several seeds a last row per env gives mean and spread
 (min-max). The runs are left in OUT, so `vnl plot OUT/ENV-s*` draws the curves (this script draws
 the reward and the task measure of each env into OUT/ENV_<metric>.png), `vnl render OUT/ENV-s0`
-shows the behaviour, and OUT/learning.md holds the table.
+shows the behaviour, and OUT/learning.md holds the table (each invocation's, one section per
+settings, envs and seeds).
 
     .venv/bin/python benchmarks/learning.py --out runs/learning [--envs ant_run rodent_run ...]
         [--seeds 0 1] [--preset cpu] [--set KEY=VALUE ...] [--compile-cache DIR]
@@ -112,6 +113,25 @@ def curves(env: str, dirs: list[Path], out: Path) -> None:
         vnl("plot", *map(str, dirs), "--metric", key, "--out", str(png), cache=None)
 
 
+def write_section(path: Path, lines: list[str]) -> None:
+    """Writes this invocation's tables (`lines`, its header first) into `path`: in place of an
+    earlier section with the same header (the same settings, envs and seeds: a rerun), else after
+    the sections already there (other seeds or settings, which stay)."""
+    sections: list[list[str]] = []
+    for line in path.read_text().splitlines() if path.is_file() else []:
+        if line.startswith("Preset `") or not sections:
+            sections.append([])
+        sections[-1].append(line)
+    text = "\n".join(lines)
+    kept = ["\n".join(sec).rstrip("\n") for sec in sections]
+    same = [i for i, sec in enumerate(sections) if sec and sec[0] == lines[0]]
+    if same:
+        kept[same[0]] = text.rstrip("\n")
+    else:
+        kept.append(text.rstrip("\n"))
+    path.write_text("\n\n".join(kept) + "\n")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", required=True, help="directory for the runs, curves and learning.md")
@@ -123,16 +143,16 @@ def main() -> None:
     args = parser.parse_args()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    # Earlier invocations' tables (other seeds, other settings) stay: this one's is added after them.
-    before = (out / "learning.md").read_text() if (out / "learning.md").is_file() else ""
-    lines = [f"Preset `{args.preset}`" + (f", `--set {' '.join(args.set)}`" if args.set else "") + ".", ""]
+    header = f"Preset `{args.preset}`" + (f", `--set {' '.join(args.set)}`" if args.set else "")
+    header += f"; {' '.join(args.envs)}, seeds {' '.join(map(str, args.seeds))}."
+    lines = [header, ""]
     for env in args.envs:
         dirs = [out / f"{env}-s{seed}" for seed in args.seeds]
         for seed, run in zip(args.seeds, dirs, strict=True):
             train(run, env, seed, args)
         curves(env, dirs, out)
         lines += table(env, {seed: records(run) for seed, run in zip(args.seeds, dirs, strict=True)}) + [""]
-        (out / "learning.md").write_text(before + ("\n" if before else "") + "\n".join(lines))
+        write_section(out / "learning.md", lines)
     print("\n".join(lines))
     print(f"[learning] wrote {out / 'learning.md'}")
 

@@ -1,5 +1,5 @@
 """benchmarks/learning.py at a tiny scale: the runs, the table (with the spread over seeds), the
-curves, and a second invocation that skips the finished runs and keeps the first one's table."""
+curves, and later invocations that skip the finished runs and keep the others' tables."""
 
 import json
 import subprocess
@@ -33,5 +33,10 @@ def test_learning_benchmark_tabulates_untrained_and_trained_runs(tmp_path):
         assert (out / png).stat().st_size > 10_000, png
     again = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=300)
     assert again.returncode == 0 and again.stdout.count("finished; skipping") == 2, again.stdout[-2000:]
-    # A second invocation adds its table after the first one's, which stays.
-    assert (out / "learning.md").read_text() == table + "\n" + table
+    # The same invocation again replaces its own section; another one (seed 1 alone) is added after it.
+    assert (out / "learning.md").read_text() == table
+    at = cmd.index("--seeds")
+    seed1 = [*cmd[: at + 1], "1", *cmd[at + 3 :]]
+    assert subprocess.run(seed1, capture_output=True, text=True, cwd=ROOT, timeout=300).returncode == 0
+    both = (out / "learning.md").read_text()
+    assert both.startswith(table.rstrip("\n")) and both.count("Preset `tiny`") == 2 and "ant_run, seeds 1." in both

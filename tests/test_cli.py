@@ -108,6 +108,17 @@ def test_eval_on_a_variant_of_the_task(trained_run, tmp_path):
         errors = [line for line in p.stderr.splitlines() if line.startswith("vnl: error:")]
         assert p.returncode == 2 and len(errors) == 1 and says in errors[0], p.stderr
         assert "Traceback" not in p.stderr
+    # A recording says which variant it was made on, and `vnl view` rebuilds that env.
+    from vnl import viewer
+    from vnl.analysis import open_recording
+
+    recording = tmp_path / "r.nc"
+    variant = ("--set", "env_config.healthy_reward=0")
+    p = run("record", out, "--episodes", "1", "--steps", "5", *variant, "--out", recording)
+    assert p.returncode == 0, p.stderr
+    ds = open_recording(recording)
+    assert json.loads(ds.attrs["env_set"]) == ["env_config.healthy_reward=0"]
+    assert viewer.recording_env(ds).config.healthy_reward == 0.0 != read_config(out).make_env().config.healthy_reward
 
 
 def test_step_best_loads_the_checkpoint_that_scored_highest(trained_run, tmp_path):

@@ -279,6 +279,8 @@ def test_a_resumed_curriculum_run_given_more_steps_extends_its_last_stage(staged
     assert [s["steps"] for s in saved["curriculum"]] == [K, 2 * K] and saved["ppo"]["num_timesteps"] == 3 * K
     with pytest.raises(VnlError, match="ends before the curriculum's last stage starts"):
         ppo.resume(copy, flags={"ppo": {"num_timesteps": 512}}, say=quiet)
+    with pytest.raises(VnlError, match="num_timesteps"):  # one line, not a TypeError
+        train_config.resume_config(train_config.read_config(copy), ["ppo.num_timesteps=abc"], None)
 
 
 def test_curriculum_config_errors_name_the_problem(staged):

@@ -547,6 +547,8 @@ def check_inputs(args: argparse.Namespace) -> None:
         raise VnlError("vnl render needs a RUN_DIR (or --list-cameras)")
     elif command in ("eval", "record") or (command == "render" and args.run_dir):
         _run_dir(args.run_dir)
+        for text in args.set:
+            config_lib.task_variant_assignment(text)
     elif command == "plot":
         for d in args.run_dirs:
             _run_dir(d, config=False)  # runs are grouped by config.yaml when they have one

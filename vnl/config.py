@@ -251,3 +251,15 @@ def dump_yaml(obj: Any, path: str) -> None:
     with open(tmp, "w") as f:
         yaml.safe_dump(to_dict(obj), f, sort_keys=False)
     os.replace(tmp, path)
+
+
+def task_variant_assignment(text: str) -> dict[str, Any]:
+    """One `--set env_config.KEY=VALUE` of `vnl eval`, `render` or `record`, parsed; anything
+    but an env_config key is refused (it would not be the run's policy). Imports nothing heavy."""
+    key = text.split("=", 1)[0].strip()
+    if not key.startswith("env_config."):
+        raise VnlError(
+            f"--set {key}: a trained run can only be evaluated on a variant of its task, so --set takes "
+            "env_config.* keys here (e.g. --set env_config.terminate_root_below=null)"
+        )
+    return parse_assignment(text)

@@ -28,6 +28,7 @@ class LoadedRun:
     policy: Policy
     step: int
     params: Any
+    env_set: tuple[str, ...] = ()  # the task variant (`env_config.KEY=VALUE`) the env was built with
 
 
 def make_policy_fn(config: TrainConfig, env: Env, params: Any, deterministic: bool) -> Policy:
@@ -79,7 +80,7 @@ def load_run(
             f"now has {expected}; was the environment changed since the run?"
         )
     policy = make_policy_fn(config, env, params, deterministic)
-    return LoadedRun(Path(run_dir), config, env, policy, loaded_step, params)
+    return LoadedRun(Path(run_dir), config, env, policy, loaded_step, params, tuple(env_set or ()))
 
 
 def best_checkpoint(run_dir: str | Path) -> tuple[int, str, float]:

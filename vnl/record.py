@@ -195,6 +195,7 @@ def _dataset(run: LoadedRun, raw: dict[str, Any], episodes: int, steps: int, see
             "title": f"vnl neural recording of {run.config.env}",
             "env": run.config.env,
             "run_dir": str(run.run_dir),
+            "env_set": json.dumps(list(run.env_set)),  # the task variant of `--set env_config...`
             "checkpoint_step": int(run.step),
             "control_dt": float(env.dt),
             "deterministic_policy": int(deterministic),

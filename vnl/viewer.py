@@ -22,6 +22,7 @@ viewer (`rerun --web-viewer FILE.rrd`) and its notebook widget (`notebook`) open
 from __future__ import annotations
 
 import dataclasses
+import json
 from pathlib import Path
 from typing import Any
 
@@ -378,10 +379,14 @@ def notebook(ds: Any, env: Any, episode: int = 0, units: int = 4, camera: bool =
 
 
 def recording_env(ds: Any) -> Any:
-    """The env of the run a recording was made of (built from its config.yaml; no checkpoint)."""
+    """The env of the run a recording was made of (built from its config.yaml, and the task
+    variant it was recorded on, `vnl record --set`; no checkpoint)."""
     from vnl.policy import read_config
+    from vnl.train.config import task_variant
 
     run_dir = ds.attrs.get("run_dir")
     if not run_dir:
         raise VnlError("the recording does not say which run it recorded (no run_dir attribute)")
-    return read_config(run_dir).make_env()
+    config = read_config(run_dir)
+    env_set = json.loads(ds.attrs.get("env_set", "[]"))
+    return (task_variant(config, env_set) if env_set else config).make_env()

@@ -121,7 +121,7 @@ _ANT_GAPS_PRESETS = _c_on_cpu(
             "healthy_min_upright": 0.0,
             "ground_scan": list(_ANT_GAPS_SCAN),
         },
-        "ppo": {"num_timesteps": 12_000_000, "num_evals": 25},
+        "ppo": {"num_evals": 25},  # 12M steps: the stages' sum
         "curriculum": [
             {"name": "no_gaps", "steps": 1_500_000, "env_config": {"corridor": {"gap_length": [0.0, 0.0]}}},
             {"name": "short_gaps", "steps": 1_500_000, "env_config": {"corridor": {"gap_length": [0.125, 0.25]}}},

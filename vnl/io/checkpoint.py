@@ -208,11 +208,10 @@ def best(run_dir: str | Path, metric: str = "eval/episode_reward") -> tuple[int,
     checkpoints of the latest stage reached compete: earlier stages evaluated another task (the
     gapless corridor's reward is not the gaps')."""
     records = {s: _record(run_dir, s) for s in steps(run_dir)}
-    stage = max((r.get("curriculum/stage", 0) for r in records.values()), default=0)
+    stages = {s: _finite(r.get("curriculum/stage")) or 0.0 for s, r in records.items()}
+    latest = max(stages.values(), default=0.0)
     scored = [
-        (value, -s)
-        for s, r in records.items()
-        if r.get("curriculum/stage", 0) == stage and (value := _finite(r.get(metric))) is not None
+        (value, -s) for s, r in records.items() if stages[s] == latest and (value := _finite(r.get(metric))) is not None
     ]
     if not scored:
         return None

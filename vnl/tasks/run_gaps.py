@@ -245,8 +245,8 @@ class RunGaps(WalkerTask):
 
     def failed(self, data: mjx.Data) -> jax.Array:
         """1.0 if the episode fails: fell below `terminate_at_height`, or (each if set) the root
-        below `terminate_root_below`, tilted past `healthy_min_upright`, or a non-foot geom touching
-        a platform."""
+        below `terminate_root_below`, a foot's lowest point below `terminate_foot_below`, tilted
+        past `healthy_min_upright`, or a non-foot geom touching a platform."""
         cfg: RunGapsConfig = self._config
         low = jp.any(data.xpos[self._low_bodies, 2] < cfg.terminate_at_height)
         if cfg.terminate_root_below is not None:
@@ -270,7 +270,7 @@ class RunGaps(WalkerTask):
         f = self._feet
         axis_z = jp.abs(data.geom_xmat[f.ids, 2, 2])  # the geom's z-axis (a capsule's axis) · world z
         reach = jp.where(f.capsule, axis_z * f.half_length + f.radius, f.rbound)
-        return jp.min(data.geom_xpos[f.ids, 2] - reach)
+        return jp.min(data.geom_xpos[f.ids, 2] - reach, initial=jp.inf)  # inf: no colliding feet
 
     def _obs(self, data: mjx.Data, layout: gaps.Layout) -> jax.Array:
         """Proprioception (+ `corridor` with `observe_corridor`, + `ground_ahead` with

@@ -458,13 +458,16 @@ def _extend_last_stage(values: dict[str, Any], saved: TrainConfig) -> None:
     """A resumed curriculum run with a new length (`--steps`) changes its last stage's steps by as
     much, in `values` (a config dict), so that the stages still add up to the run's length."""
     stages = values.get("curriculum") or []
-    added = values["ppo"]["num_timesteps"] - saved.ppo.num_timesteps
-    if not stages or not added or stages != config_lib.to_dict(saved)["curriculum"]:
+    total = (values.get("ppo") or {}).get("num_timesteps") if isinstance(values.get("ppo"), dict) else None
+    if not stages or not isinstance(total, int) or isinstance(total, bool):
+        return  # no curriculum, or a malformed length that from_dict reports in one line
+    added = total - saved.ppo.num_timesteps
+    if not added or stages != config_lib.to_dict(saved)["curriculum"]:
         return
     last = stages[-1]["steps"] + added
     if last < 1:
         raise VnlError(
-            f"--steps {values['ppo']['num_timesteps']:,} ends before the curriculum's last stage starts "
+            f"--steps (ppo.num_timesteps) {total:,} ends before the curriculum's last stage starts "
             f"(step {saved.ppo.num_timesteps - stages[-1]['steps']:,}); give more steps"
         )
     stages[-1] = {**stages[-1], "steps": last}
@@ -473,16 +476,11 @@ def _extend_last_stage(values: dict[str, Any], saved: TrainConfig) -> None:
 def task_variant(saved: TrainConfig, assignments: list[str]) -> TrainConfig:
     """`saved` with `env_config.*` assignments (`--set KEY=VALUE` of `vnl eval`, `render` and
     `record`): the trained policy on a variant of its task, e.g. without a training-only
-    termination or on longer gaps. Anything else would not be the run's policy: refused."""
-    values = config_lib.to_dict(saved)
+    termination or on longer gaps. The curriculum is dropped: a trained policy is evaluated on
+    the run's own env_config, its last stage."""
+    values = {**config_lib.to_dict(saved), "curriculum": []}
     for text in assignments:
-        key = text.split("=", 1)[0].strip()
-        if not key.startswith("env_config."):
-            raise VnlError(
-                f"--set {key}: a trained run can only be evaluated on a variant of its task, so --set takes "
-                "env_config.* keys here (e.g. --set env_config.terminate_root_below=null)"
-            )
-        values = config_lib.merge(values, config_lib.parse_assignment(text))
+        values = config_lib.merge(values, config_lib.task_variant_assignment(text))
     return config_lib.from_dict(TrainConfig, values)
 
 
