@@ -374,6 +374,22 @@ def test_walker_falling_into_a_gap_is_detected():
     assert float(e.failed(mjx.put_data(m, d))) == 1.0
 
 
+def _ant_settled_at(m: mujoco.MjModel, p: gaps.GapsParams, x: float, seconds: float) -> mujoco.MjData:
+    """The ant placed at `x` in a corridor with gaps of 0.45 m after 17 and 19.45 m, after
+    `seconds` of MuJoCo C with no action."""
+    start = np.full(p.max_platforms, np.inf, np.float32)
+    length = np.full(p.max_platforms, 2.0, np.float32)
+    start[:4], length[0] = [0.0, 15.0, 17.45, 19.9], 15.0
+    layout = gaps.Layout(start=jp.asarray(start), length=jp.asarray(length))
+    d = mujoco.MjData(m)
+    d.qpos[:] = m.qpos0
+    d.qpos[0] = x
+    d.mocap_pos[:] = np.asarray(gaps.place_window(layout, jp.float32(x), p))
+    for _ in range(int(seconds / m.opt.timestep)):
+        mujoco.mj_step(m, d)
+    return d
+
+
 def test_ant_foot_in_a_gap_fails_with_terminate_foot_below():
     """`feet_lowest` is the lowest point of the feet's capsules: an ant settled on a platform (1 s of
     MuJoCo C, no action) rests its feet on the top (z = 0, within the contacts' 5-mm penetration);
@@ -381,18 +397,9 @@ def test_ant_foot_in_a_gap_fails_with_terminate_foot_below():
     `terminate_foot_below=-0.05` and none without (its feet stay above `terminate_at_height`)."""
     strict, default = vnl.make("ant_run_gaps", terminate_foot_below=-0.05), vnl.make("ant_run_gaps")
     m, p = strict.mj_model, strict.corridor
-    start = np.full(p.max_platforms, np.inf, np.float32)
-    length = np.full(p.max_platforms, 2.0, np.float32)
-    start[:4], length[0] = [0.0, 15.0, 17.45, 19.9], 15.0  # a gap of 0.45 m after 17 m
-    layout = gaps.Layout(start=jp.asarray(start), length=jp.asarray(length))
     seen = {}
     for where, x in (("platform", 16.0), ("gap", 16.5)):  # the front feet reach ~0.65 m ahead
-        d = mujoco.MjData(m)
-        d.qpos[:] = m.qpos0
-        d.qpos[0] = x
-        d.mocap_pos[:] = np.asarray(gaps.place_window(layout, jp.float32(x), p))
-        for _ in range(int(1.0 / m.opt.timestep)):
-            mujoco.mj_step(m, d)
+        d = _ant_settled_at(m, p, x, seconds=1.0)
         data = mjx.put_data(m, d)
         seen[where] = float(strict.feet_lowest(data)), float(strict.failed(data)), float(default.failed(data))
     assert -0.005 < seen["platform"][0] <= 0.0 and seen["platform"][1:] == (0.0, 0.0), seen
@@ -414,17 +421,8 @@ def test_ant_wedged_in_a_gap_fails_with_terminate_root_below():
             g for g in range(m.ngeom) if m.geom(g).name.startswith("walker/") and m.geom(g).name != "walker/torso_geom"
         ]
         m.geom_contype[legs] = m.geom_conaffinity[legs] = 0
-        start = np.full(p.max_platforms, np.inf, np.float32)
-        length = np.full(p.max_platforms, 2.0, np.float32)
-        start[:4], length[0] = [0.0, 15.0, 17.45, 19.9], 15.0  # gaps of 0.45 m after 17 and 19.45 m
-        layout = gaps.Layout(start=jp.asarray(start), length=jp.asarray(length))
         for where, x in (("gap", 17.225), ("platform", 16.0)):
-            d = mujoco.MjData(m)
-            d.qpos[:] = m.qpos0
-            d.qpos[0] = x
-            d.mocap_pos[:] = np.asarray(gaps.place_window(layout, jp.float32(x), p))
-            for _ in range(int(1.5 / m.opt.timestep)):
-                mujoco.mj_step(m, d)
+            d = _ant_settled_at(m, p, x, seconds=1.5)
             feet = d.xpos[e._low_bodies, 2].min()
             results[below, where] = float(e.failed(mjx.put_data(m, d))), float(d.xpos[e.root_body_id, 2]), feet
     z = {where: torso for (_, where), (_, torso, _) in results.items()}
