@@ -436,14 +436,12 @@ def resume_config(saved: TrainConfig, assignments: list[str] | None, flags: dict
     for text in assignments or []:
         values = config_lib.merge(values, config_lib.parse_assignment(text))
     values = config_lib.merge(values, flags or {})
-    _extend_last_stage(values, saved)
+    extended = _extend_last_stage(values, saved)
     new = config_lib.from_dict(TrainConfig, values)
     before, after = _flatten(config_lib.to_dict(saved)), _flatten(config_lib.to_dict(new))
     changed = sorted(k for k in set(before) | set(after) if before.get(k) != after.get(k))
-    if saved.curriculum and new.curriculum:
-        followed = (*saved.curriculum[:-1], dataclasses.replace(saved.curriculum[-1], steps=new.curriculum[-1].steps))
-        if new.curriculum == followed:
-            changed = [k for k in changed if k != "curriculum"]  # the last stage follows --steps
+    if extended:
+        changed = [k for k in changed if k != "curriculum"]  # the last stage follows --steps
     unsafe = [k for k in changed if not k.startswith(SAFE_TO_CHANGE_ON_RESUME)]
     if unsafe:
         detail = ", ".join(f"{k}: {before.get(k)!r} -> {after.get(k)!r}" for k in unsafe)
@@ -454,16 +452,17 @@ def resume_config(saved: TrainConfig, assignments: list[str] | None, flags: dict
     return new
 
 
-def _extend_last_stage(values: dict[str, Any], saved: TrainConfig) -> None:
+def _extend_last_stage(values: dict[str, Any], saved: TrainConfig) -> bool:
     """A resumed curriculum run with a new length (`--steps`) changes its last stage's steps by as
-    much, in `values` (a config dict), so that the stages still add up to the run's length."""
-    stages = values.get("curriculum") or []
-    total = (values.get("ppo") or {}).get("num_timesteps") if isinstance(values.get("ppo"), dict) else None
+    much, in `values` (a config dict), so that the stages still add up to the run's length.
+    Returns whether it did (not when the stages themselves were changed: that is refused)."""
+    stages, ppo = values.get("curriculum") or [], values.get("ppo")
+    total = ppo.get("num_timesteps") if isinstance(ppo, dict) else None
     if not stages or not isinstance(total, int) or isinstance(total, bool):
-        return  # no curriculum, or a malformed length that from_dict reports in one line
+        return False  # no curriculum, or a malformed length that from_dict reports in one line
     added = total - saved.ppo.num_timesteps
     if not added or stages != config_lib.to_dict(saved)["curriculum"]:
-        return
+        return False
     last = stages[-1]["steps"] + added
     if last < 1:
         raise VnlError(
@@ -471,6 +470,7 @@ def _extend_last_stage(values: dict[str, Any], saved: TrainConfig) -> None:
             f"(step {saved.ppo.num_timesteps - stages[-1]['steps']:,}); give more steps"
         )
     stages[-1] = {**stages[-1], "steps": last}
+    return True
 
 
 def task_variant(saved: TrainConfig, assignments: list[str]) -> TrainConfig:
