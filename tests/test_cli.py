@@ -108,6 +108,20 @@ def test_eval_on_a_variant_of_the_task(trained_run, tmp_path):
         errors = [line for line in p.stderr.splitlines() if line.startswith("vnl: error:")]
         assert p.returncode == 2 and len(errors) == 1 and says in errors[0], p.stderr
         assert "Traceback" not in p.stderr
+    # A run whose task changed since it trained (config.yaml edited here) is blamed on the change,
+    # not on a variant that keeps the observation.
+    import shutil
+
+    from vnl import policy
+    from vnl.errors import VnlError
+
+    edited = tmp_path / "edited"
+    shutil.copytree(out, edited)
+    text = (edited / "config.yaml").read_text()
+    assert "  observation: state\n" in text
+    (edited / "config.yaml").write_text(text.replace("  observation: state\n", "  observation: proprioception\n"))
+    with pytest.raises(VnlError, match="was the environment changed since the run"):
+        policy.load_run(edited, env_set=["env_config.healthy_reward=0"])
     # A recording says which variant it was made on, and `vnl view` rebuilds that env.
     from vnl import viewer
     from vnl.analysis import open_recording

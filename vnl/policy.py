@@ -58,7 +58,7 @@ def load_run(
     loaded_step, params = checkpoint.load(run_dir, step)
     env = config.make_env()
     expected = env.observation_size
-    state_size = expected["state"][-1] if isinstance(expected, dict) else expected
+    state_size = _state_width(env)
     mean = params[0].mean
     if isinstance(mean, dict) != isinstance(expected, dict):
         seen = "pixels" if isinstance(mean, dict) else "no pixels"
@@ -68,19 +68,32 @@ def load_run(
     got = (mean["state"] if isinstance(mean, dict) else mean).shape[-1]
     if not config.ppo.normalize_observations:
         got = state_size
-    expected = state_size
-    if got != expected and env_set:
-        raise VnlError(
+    if got != state_size:
+        raise VnlError(_width_mismatch(run_dir, config, got, state_size, env_set))
+    policy = make_policy_fn(config, env, params, deterministic)
+    return LoadedRun(Path(run_dir), config, env, policy, loaded_step, params, tuple(env_set or ()))
+
+
+def _width_mismatch(
+    run_dir: str | Path, config: TrainConfig, got: int, expected: int, env_set: list[str] | None
+) -> str:
+    """The error for a policy reading `got` observation entries in an env that has `expected`:
+    the variant's fault only if the run's own task still has the policy's width."""
+    if env_set and _state_width(read_config(run_dir).make_env()) == got:
+        return (
             f"--set {' '.join(env_set)} changes {config.env}'s observation to width {expected}, and the "
             f"policy of {run_dir} reads {got}; evaluate on a variant with the same observation"
         )
-    if got != expected:
-        raise VnlError(
-            f"checkpoint of {run_dir} expects observations of width {got}, but {config.env} "
-            f"now has {expected}; was the environment changed since the run?"
-        )
-    policy = make_policy_fn(config, env, params, deterministic)
-    return LoadedRun(Path(run_dir), config, env, policy, loaded_step, params, tuple(env_set or ()))
+    return (
+        f"checkpoint of {run_dir} expects observations of width {got}, but {config.env} "
+        f"now has {expected}; was the environment changed since the run?"
+    )
+
+
+def _state_width(env: Env) -> int:
+    """Width of the env's proprioceptive observation (the `state` entry for pixel envs)."""
+    size = env.observation_size
+    return size["state"][-1] if isinstance(size, dict) else size
 
 
 def best_checkpoint(run_dir: str | Path) -> tuple[int, str, float]:
