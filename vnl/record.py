@@ -14,8 +14,10 @@ step at which the episode ended (later steps repeat a frozen state and should be
 Activations are captured from the very forward pass that chose the action (flax method
 interception of every `Dense` layer of Brax's MLPs): `policy_hidden_<i>` / `value_hidden_<i>` are
 the outputs of hidden layer i after the nonlinearity, the inputs the next layer receives;
-`policy_output` holds the raw output layer (the action distribution's location, then its
-pre-softplus scale; the deterministic action is tanh(location)), `value_output` the value estimate.
+`policy_output` holds the raw output layer (with `network.distribution_type: tanh_normal` the
+action distribution's location, then its pre-softplus scale, the deterministic action being
+tanh(location); with `normal` the location alone, the deterministic action, clipped by the env),
+`value_output` the value estimate.
 """
 
 from __future__ import annotations
@@ -65,7 +67,9 @@ def network_activity(run: LoadedRun, obs: jax.Array, key: jax.Array, determinist
         ("value", network.value_network, value_params),
     ):
         result, dense = _dense_outputs(net.apply, normalizer, params, obs)
-        names = sorted(dense, key=lambda n: int(n.split("_")[-1]))
+        # Brax's MLP layers are hidden_0..hidden_N; a `normal` policy's location layer
+        # (Dense_0) follows its MLP's hidden layers.
+        names = sorted(dense, key=lambda n: (not n.startswith("hidden_"), int(n.split("_")[-1])))
         for name in names[:-1]:
             out[f"{prefix}_{name}"] = act(dense[name])
         out[f"{prefix}_output"] = dense[names[-1]] if prefix == "policy" else result

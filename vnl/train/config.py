@@ -115,7 +115,15 @@ class NetworkConfig:
     encodes each `pixels/` observation before the MLP (Brax's `networks_vision`; NatureCNN by
     default). `cnn_pool` reduces the last feature map: `avg`/`max` over space (C features),
     `spatial_softmax` (the expected x, y of each channel: 2C features, keeps *where* things are),
-    `none` (flattened)."""
+    `none` (flattened).
+
+    The action distribution: `tanh_normal` (Brax's default) is a Gaussian whose location and
+    scale the policy MLP outputs for each state, squashed by tanh; `normal` is a Gaussian whose
+    location the MLP outputs and whose scale is one learned parameter per action, the same in
+    every state (Brax's `PolicyModuleWithStd`; the env clips actions to the control range), as
+    legged-robot PPO uses. `init_noise_std` is that scale at the start and `noise_std_type` how it
+    is stored (`log`: exp of the parameter, always positive; `scalar`: the parameter itself).
+    Neither applies to `tanh_normal`."""
 
     policy_hidden_layer_sizes: tuple[int, ...] = (32, 32, 32, 32)
     value_hidden_layer_sizes: tuple[int, ...] = (256, 256, 256, 256, 256)
@@ -125,8 +133,13 @@ class NetworkConfig:
     cnn_strides: tuple[int, ...] = (4, 2, 1)
     cnn_max_pool: bool = False  # a 2x2 max-pool after each convolution
     cnn_pool: Literal["avg", "max", "spatial_softmax", "none"] = "avg"
+    distribution_type: Literal["tanh_normal", "normal"] = "tanh_normal"
+    noise_std_type: Literal["log", "scalar"] = "log"
+    init_noise_std: float = 1.0
 
     def validate(self) -> None:
+        if not self.init_noise_std > 0:
+            raise VnlError(f"network.init_noise_std must be > 0, got {self.init_noise_std}")
         for key in (
             "policy_hidden_layer_sizes",
             "value_hidden_layer_sizes",

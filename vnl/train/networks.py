@@ -31,6 +31,11 @@ def network_factory(net: NetworkConfig, vision: bool = False) -> Callable[..., A
     `make_ppo_networks_vision` (a CNN per `pixels/` key, then the MLP on the CNN features and
     the normalized `state`), taking uint8 images (scaled to [0, 1] inside the networks)."""
     activation = ACTIVATIONS[net.activation]
+    distribution = {
+        "distribution_type": net.distribution_type,
+        "noise_std_type": net.noise_std_type,
+        "init_noise_std": net.init_noise_std,
+    }
     if vision:
         return functools.partial(
             _vision_networks,
@@ -44,12 +49,14 @@ def network_factory(net: NetworkConfig, vision: bool = False) -> Callable[..., A
             cnn_stride=tuple(net.cnn_strides),
             cnn_max_pool=net.cnn_max_pool,
             cnn_global_pool=net.cnn_pool,
+            **distribution,
         )
     return functools.partial(
         ppo_networks.make_ppo_networks,
         policy_hidden_layer_sizes=tuple(net.policy_hidden_layer_sizes),
         value_hidden_layer_sizes=tuple(net.value_hidden_layer_sizes),
         activation=activation,
+        **distribution,
     )
 
 

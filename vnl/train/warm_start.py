@@ -73,6 +73,9 @@ class Parent:
         policy outputs a location and a scale per action)."""
         mean = [v for k, v in self.arrays.items() if k.startswith(NORMALIZER + "mean")]
         width = int(mean[0].shape[-1]) if len(mean) == 1 else -1
+        location = self.arrays.get(".training.params.policy['params']['Dense_0']['bias']")
+        if location is not None:  # network.distribution_type normal: a location per action
+            return width, int(location.shape[-1])
         outputs = [
             (int(m.group(1)), v)
             for k, v in self.arrays.items()
@@ -116,7 +119,9 @@ def load_parent(config: TrainConfig) -> Parent:
 
 def _check_networks(parent: Parent, config: TrainConfig) -> None:
     a, b = parent.config, config
-    fields = ("policy_hidden_layer_sizes", "value_hidden_layer_sizes", "activation")
+    fields = ("policy_hidden_layer_sizes", "value_hidden_layer_sizes", "activation", "distribution_type")
+    if b.network.distribution_type == "normal":
+        fields += ("noise_std_type",)
     if b.vision.enabled:
         fields += ("cnn_channels", "cnn_kernel_sizes", "cnn_strides", "cnn_max_pool", "cnn_pool")
     differ = [f for f in fields if getattr(a.network, f) != getattr(b.network, f)]
@@ -232,7 +237,8 @@ def apply(loop: Any, state: Any, parent: Parent, keep_optimizer: bool) -> Any:
     return loop.with_training(state, jax.tree_util.tree_unflatten(treedef, leaves))
 
 
-FIRST_KERNEL = re.compile(r"\.training\.params\.(policy|value)\['params'\]\['hidden_0'\]\['kernel'\]")
+# A `normal` policy's MLP sits under MLP_0 (Brax's PolicyModuleWithStd).
+FIRST_KERNEL = re.compile(r"\.training\.params\.(policy|value)\['params'\](\['MLP_0'\])?\['hidden_0'\]\['kernel'\]")
 
 
 def _widen(name: str, theirs: np.ndarray, parent: Parent) -> np.ndarray:
