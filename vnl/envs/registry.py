@@ -45,7 +45,10 @@ def _c_on_cpu(cpu: dict[str, Any] | None = None, **others: dict[str, Any]) -> di
 # gaits: seed 0 0.26 m/s at 5.1M, 0.69 m/s (a bound) at 5.6M, back to standing at 6.1M; seed 1
 # 0.11-0.22 m/s; seed 2 0.69 m/s at 3.1M, then backwards at 4.6M. The learning rate stays constant:
 # decaying it to 0 (ppo.learning_rate_final=0) gave seed 0 0.37 m/s upright at 5.1M but seeds 1
-# and 2 0.09 and 0.05 m/s, and a KL-adaptive rate (ppo.desired_kl=0.01) seed 0 0.03 m/s.
+# and 2 0.09 and 0.05 m/s, and a KL-adaptive rate (ppo.desired_kl=0.01) seed 0 0.03 m/s. A normal
+# policy with one learned scale per action (network.distribution_type=normal, init_noise_std 0.2)
+# keeps the KL at 0.02-0.12 (this preset's: up to 52) but oscillates the same way: with the decay
+# seed 0 ran at 0.54 m/s upright at 3.1M and stood at 5.1M, seed 1 never passed 0.26 m/s.
 # rodent_escape_bowl: upright and 8.7x the untrained reward in 3.5M, no escape; rodent_run_gaps no
 # better than untrained in 4M with dm_control's task; with the episode ending beyond 45° of tilt
 # (env_config.healthy_min_upright) and warm-started from a running rat, 1.1-1.4 m along the
