@@ -70,7 +70,8 @@ class Parent:
     def sizes(self) -> tuple[int, int]:
         """(observation width, action size) the parent's networks take and give: the
         normalizer's width (of `state` for vision runs) and half the policy's output (Brax's
-        policy outputs a location and a scale per action)."""
+        `tanh_normal` policy outputs a location and a scale per action; a `normal` one, the
+        location alone, from `Dense_0`)."""
         mean = [v for k, v in self.arrays.items() if k.startswith(NORMALIZER + "mean")]
         width = int(mean[0].shape[-1]) if len(mean) == 1 else -1
         location = self.arrays.get(".training.params.policy['params']['Dense_0']['bias']")
