@@ -2,13 +2,15 @@
 
 For each env and seed: `vnl train ENV --preset P --seed S --no-video --out OUT/ENV-sS` (a run that
 finished is skipped, one that stopped is resumed), then one table row from its metrics.jsonl: the
-untrained policy (the step-0 evaluation) against the trained one (the last evaluation): eval
-reward and the env's task measures, env steps, wall minutes of the run (compiles and evaluations
-included) and training env steps/s. With several seeds a last row per env gives mean and spread
-(min-max). The runs are left in OUT, so `vnl plot OUT/ENV-s*` draws the curves (this script draws
-the reward and the task measure of each env into OUT/ENV_<metric>.png), `vnl render OUT/ENV-s0`
-shows the behaviour, and OUT/learning.md holds the table (each invocation's, one section per
-settings, envs and seeds).
+untrained policy (the step-0 evaluation) against the trained one (the last evaluation): eval reward
+and the env's task measures; the best evaluation (by the run's `log.keep_best` metric, the
+checkpoint `vnl eval RUN --step best` loads: its step, reward and first measure), which differs
+from the last when a run learns a behaviour and loses it; env steps, wall minutes of the run
+(compiles and evaluations included) and training env steps/s. With several seeds a last row per env
+gives mean and spread (min-max). The runs are left in OUT, so `vnl plot OUT/ENV-s*` draws the
+curves (this script draws the reward and the task measure of each env into OUT/ENV_<metric>.png),
+`vnl render OUT/ENV-s0` shows the behaviour, and OUT/learning.md holds the table (each
+invocation's, one section per settings, envs and seeds).
 
     .venv/bin/python benchmarks/learning.py --out runs/learning [--envs ant_run rodent_run ...]
         [--seeds 0 1] [--preset cpu] [--set KEY=VALUE ...] [--compile-cache DIR]
@@ -72,12 +74,29 @@ def value(record: dict, key: str) -> float:
     return float("nan") if v is None else float(v)
 
 
-def row(env: str, seed: str, first: dict, last: dict, steps_per_sec: float) -> str:
-    """`| env | seed | reward untrained -> trained | measures ... | steps | minutes | steps/s |`."""
+def best(env: str, run: Path, recs: list[dict]) -> str:
+    """The checkpoint `vnl eval RUN --step best` loads (`vnl.policy.best_checkpoint`: the highest
+    of the run's `log.keep_best` metric among its kept checkpoints): "R at step (first measure)"
+    from that step's evaluation; "-" when no checkpoint recorded the metric."""
+    from vnl.errors import VnlError
+    from vnl.policy import best_checkpoint
+
+    try:
+        step = best_checkpoint(run)[0]
+    except VnlError:
+        return "-"
+    top = next(r for r in recs if int(r["step"]) == step)
+    _, measure, spec = MEASURES[task_of(env)][0]
+    return f"{value(top, 'eval/episode_reward'):.1f} at {step:,} ({format(value(top, measure), spec)})"
+
+
+def row(env: str, seed: str, recs: list[dict], best_cell: str, steps_per_sec: float) -> str:
+    """`| env | seed | reward untrained -> trained | measures ... | best | steps | minutes | steps/s |`."""
+    first, last = recs[0], recs[-1]
     cells = [env, seed, f"{value(first, 'eval/episode_reward'):.1f} → {value(last, 'eval/episode_reward'):.1f}"]
     for _, key, spec in MEASURES[task_of(env)]:
         cells.append(f"{format(value(first, key), spec)} → {format(value(last, key), spec)}")
-    cells += [f"{int(last['step']):,}", f"{value(last, 'wall_time') / 60:.1f}", f"{steps_per_sec:,.0f}"]
+    cells += [best_cell, f"{int(last['step']):,}", f"{value(last, 'wall_time') / 60:.1f}", f"{steps_per_sec:,.0f}"]
     return "| " + " | ".join(cells) + " |"
 
 
@@ -91,18 +110,20 @@ def spread(env: str, runs: list[list[dict]]) -> str:
 
     cells = [f"**{env}**", f"mean of {len(runs)}", cell("eval/episode_reward", ".1f")]
     cells += [cell(key, spec) for _, key, spec in MEASURES[task_of(env)]]
-    return "| " + " | ".join(cells + ["", cell("wall_time", ".1f", scale=60.0), ""]) + " |"
+    return "| " + " | ".join(cells + ["", "", cell("wall_time", ".1f", scale=60.0), ""]) + " |"
 
 
-def table(env: str, runs: dict[int, list[dict]]) -> list[str]:
-    head = ["env", "seed", "eval reward (untrained → trained)"] + [c for c, _, _ in MEASURES[task_of(env)]]
-    head += ["env steps", "minutes", "training steps/s"]
+def table(env: str, runs: dict[int, tuple[Path, list[dict]]]) -> list[str]:
+    """The env's table: one row per seed (`runs`: seed -> (run dir, its records)), then the spread."""
+    measures = MEASURES[task_of(env)]
+    head = ["env", "seed", "eval reward (untrained → trained)"] + [c for c, _, _ in measures]
+    head += [f"best evaluation: reward at step ({measures[0][0]})", "env steps", "minutes", "training steps/s"]
     lines = ["| " + " | ".join(head) + " |", "|---|---|" + "---:|" * (len(head) - 2)]
-    for seed, recs in runs.items():
+    for seed, (run, recs) in runs.items():
         sps = [r["env_steps_per_sec"] for r in recs[1:] if r.get("env_steps_per_sec")]
-        lines.append(row(env, str(seed), recs[0], recs[-1], statistics.median(sps) if sps else float("nan")))
+        lines.append(row(env, str(seed), recs, best(env, run, recs), statistics.median(sps) if sps else float("nan")))
     if len(runs) > 1:
-        lines.append(spread(env, list(runs.values())))
+        lines.append(spread(env, [recs for _, recs in runs.values()]))
     return lines
 
 
@@ -151,7 +172,7 @@ def main() -> None:
         for seed, run in zip(args.seeds, dirs, strict=True):
             train(run, env, seed, args)
         curves(env, dirs, out)
-        lines += table(env, {seed: records(run) for seed, run in zip(args.seeds, dirs, strict=True)}) + [""]
+        lines += table(env, {seed: (run, records(run)) for seed, run in zip(args.seeds, dirs, strict=True)}) + [""]
         write_section(out / "learning.md", lines)
     print("\n".join(lines))
     print(f"[learning] wrote {out / 'learning.md'}")

@@ -27,6 +27,9 @@ def test_learning_benchmark_tabulates_untrained_and_trained_runs(tmp_path):
         reward = f"{first['eval/episode_reward']:.1f} → {last['eval/episode_reward']:.1f}"
         vx = f"{first['eval/mean_forward_velocity']:+.2f} → {last['eval/mean_forward_velocity']:+.2f}"
         assert f"| ant_run | {seed} | {reward} | {vx} |" in table, table
+        top = max(recs, key=lambda r: r["eval/episode_reward"])  # the kept best: log.keep_best's default
+        kept = f"{top['eval/episode_reward']:.1f} at {top['step']:,} ({top['eval/mean_forward_velocity']:+.2f})"
+        assert f" | {kept} | {last['step']:,} |" in table, table
         assert f"| {last['step']:,} |" in table
     assert "| **ant_run** | mean of 2 |" in table
     for png in ("ant_run_episode_reward.png", "ant_run_mean_forward_velocity.png"):

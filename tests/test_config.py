@@ -1,5 +1,7 @@
 """The config rejects bad input with a message naming the key, before anything compiles."""
 
+import dataclasses
+
 import pytest
 
 import vnl
@@ -142,3 +144,20 @@ def test_make_rejects_bad_input_before_compiling():
         "ant_run_gaps",
         "ant_escape_bowl",
     } <= set(vnl.names())
+
+
+def test_a_run_saved_before_an_env_field_existed_reads_back_with_the_field_off(tmp_path):
+    """A saved config.yaml is complete, so an env field missing from it was added to vnl later: it
+    reads back as the field's class default (off), not the env's current default, and the run
+    rebuilds the env its checkpoints were trained on. A field that is present keeps its value."""
+    cfg = train_config.resolved(train_config.build("rodent_run", "cpu"))
+    assert cfg.env_config["observe_heading"] is True  # rodent_run's default today
+    config_lib.dump_yaml(cfg, str(tmp_path / "config.yaml"))
+    assert train_config.read_config(tmp_path) == cfg
+    old = config_lib.load_yaml(str(tmp_path / "config.yaml"))
+    del old["env_config"]["observe_heading"]
+    config_lib.dump_yaml(old, str(tmp_path / "config.yaml"))
+    back = train_config.read_config(tmp_path)
+    assert back.env_config["observe_heading"] is False
+    assert back.resolved_env_config().observe_heading is False
+    assert dataclasses.replace(back, env_config={**back.env_config, "observe_heading": True}) == cfg

@@ -699,3 +699,32 @@ def test_the_clock_is_the_phase_of_the_episode_s_time_and_restarts_with_each_epi
         np.testing.assert_allclose(first.obs[-2:], [0.0, 1.0], atol=1e-6)
     with pytest.raises(VnlError, match="clock_period must be at least two control steps"):
         vnl.make("ant_run", clock_period=env.dt)
+
+
+@pytest.mark.xdist_group("rodent_run-c")
+def test_the_rat_observes_its_heading_and_the_ant_can():
+    """`observe_heading` (rodent_run's default): `heading` is the world x-axis (the rewarded
+    direction) in the root's frame: (1, 0, 0) at reset; after a step from a pose turned 90° left
+    it points (0, -1) in the horizontal, turned round (-1, 0). Off by default elsewhere; with the
+    state observation too (the ant)."""
+    env = vnl.make("rodent_run", impl="c")
+    layout = env.observation_layout()
+    assert layout[-1] == ("heading", 3) and sum(w for _, w in layout) == env.observation_size
+    start = sum(w for _, w in layout[:-1])
+    state = jax.jit(env.reset)(jax.random.PRNGKey(0))
+    assert np.allclose(state.obs[start:], [1.0, 0.0, 0.0], atol=0.05)
+    i, step = env._free_qpos, jax.jit(env.step)
+    for yaw, expected in ((np.pi / 2, [0.0, -1.0, 0.0]), (np.pi, [-1.0, 0.0, 0.0])):
+        quat = jp.array([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
+        turned = state.data.replace(qpos=state.data.qpos.at[i + 3 : i + 7].set(quat))
+        moved = step(state.replace(data=env.forward(turned)), jp.zeros(env.action_size))
+        heading = np.asarray(moved.obs[start:])  # a unit vector; the step's zero action tilts the rat a little
+        assert np.linalg.norm(heading) == pytest.approx(1.0, abs=1e-4) and abs(heading[2]) < 0.15, heading
+        assert np.allclose(heading[:2] / np.linalg.norm(heading[:2]), expected[:2], atol=0.02), heading
+    blind = vnl.make("rodent_run", impl="c", observe_heading=False)
+    assert "heading" not in dict(blind.observation_layout())
+    assert blind.observation_size == env.observation_size - 3
+    ant = vnl.make("ant_run", impl="c", observe_heading=True, clock_period=0.5)
+    assert ant.observation_layout()[-2:] == [("heading", 3), ("clock", 2)]
+    first = jax.jit(ant.reset)(jax.random.PRNGKey(1))
+    assert first.obs.shape == (ant.observation_size,) and np.allclose(first.obs[-5:-2], [1, 0, 0], atol=0.05)

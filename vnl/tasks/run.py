@@ -50,6 +50,12 @@ class RunConfig(WalkerTaskConfig):
     """
 
     observation: Literal["state", "proprioception"] = "state"
+    # Add `heading` to the observation: the world x-axis (the rewarded direction) in the root
+    # body's frame, 3 numbers: a compass. dm_control's proprioception senses tilt (`world_zaxis`)
+    # but not yaw, so without it a walker cannot tell which way is forward once it has turned;
+    # the rat's running policy drifted 10-160° off +x over its 10 s episodes and could not turn
+    # back (README, Does every task learn?). The state observation carries the root quaternion.
+    observe_heading: bool = False
     forward_reward_weight: float = 1.0
     forward_velocity_cap: float | None = None  # m/s; None: the forward reward grows with any speed
     healthy_reward: float = 1.0
@@ -152,6 +158,7 @@ RODENT_RUN = RunConfig(
     healthy_z_range=(0.025, 0.5),
     healthy_min_upright=0.7071,
     reset_noise_scale=0.01,
+    observe_heading=True,
 )
 """`rodent_run` defaults: dm_control's rat on a flat floor, 20 ms control steps, 10 s episodes.
 
@@ -294,22 +301,27 @@ class Run(WalkerTask):
         return ok.astype(jp.float32)
 
     def observation_layout(self) -> list[tuple[str, int]]:
+        heading = [("heading", 3)] if self._config.observe_heading else []
         if self._config.observation == "proprioception":
-            return self.proprioception_layout() + self.clock_layout()
+            return self.proprioception_layout() + heading + self.clock_layout()
         m = self._mj_model
         layout = [("qpos[2:]", m.nq - 2), ("qvel", m.nv)]
         if self._walker.name in ("humanoid", "brax_humanoid"):
             layout += [("cinert[1:]", (m.nbody - 1) * 10), ("cvel[1:]", (m.nbody - 1) * 6), ("qfrc_actuator", m.nv)]
-        return layout + self.clock_layout()
+        return layout + heading + self.clock_layout()
 
     def _obs(self, data: mjx.Data) -> jax.Array:
+        """The observation (`observation_layout`), shape (observation_size,)."""
         if self._config.observation == "proprioception":
-            return jp.concatenate([self.proprioception(data), *self.clock(data)])
-        parts = [data.qpos[self._obs_qpos_start :], data.qvel]
-        if self._walker.name in ("humanoid", "brax_humanoid"):
+            parts = [self.proprioception(data)]
+        else:
+            parts = [data.qpos[self._obs_qpos_start :], data.qvel]
+        if self._config.observation == "state" and self._walker.name in ("humanoid", "brax_humanoid"):
             parts += [
                 physics.cinert(data)[1:].ravel(),
                 data.cvel[1:].ravel(),
                 data.qfrc_actuator,
             ]
+        if self._config.observe_heading:
+            parts.append(data.xmat[self._root][0])  # world x in the root's frame: xmat's first row
         return jp.concatenate(parts + self.clock(data)).astype(jp.float32)

@@ -430,7 +430,26 @@ def read_config(run_dir: str | Path) -> TrainConfig:
     path = run_dir / "config.yaml"
     if not path.is_file():
         raise VnlError(f"{run_dir} is not a vnl run directory (no config.yaml)")
-    return config_lib.from_dict(TrainConfig, config_lib.load_yaml(str(path)))
+    return config_lib.from_dict(TrainConfig, with_fields_added_since(config_lib.load_yaml(str(path))))
+
+
+_PLAIN = (bool, int, float, str, type(None), tuple)
+
+
+def with_fields_added_since(values: dict[str, Any]) -> dict[str, Any]:
+    """A saved run's values with the env config fields that vnl added after it was written.
+
+    A saved `env_config` is complete (`expanded`), so a field missing from it did not exist then.
+    It takes the field's class default (by convention off: the behaviour before the field), not
+    the env's current default: a run saved before `rodent_run` observed its heading rebuilds the
+    env it trained, with the observation width of its checkpoints. Unknown envs pass unchanged
+    (`from_dict` reports them)."""
+    env_config = values.get("env_config")
+    if not isinstance(env_config, dict) or values.get("env") not in registry.names():
+        return values
+    fields = dataclasses.fields(type(registry.default_config(values["env"])))
+    added = {f.name: f.default for f in fields if f.name not in env_config and isinstance(f.default, _PLAIN)}
+    return {**values, "env_config": {**env_config, **config_lib.to_dict(added)}} if added else values
 
 
 SAFE_TO_CHANGE_ON_RESUME = ("ppo.num_timesteps", "log.", "env_config.threads")
