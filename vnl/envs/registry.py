@@ -34,21 +34,19 @@ def _c_on_cpu(cpu: dict[str, Any] | None = None, **others: dict[str, Any]) -> di
 
 # The rat steps ~10x slower than the ant (43 joints, 10 physics steps of 2 ms per control step).
 # On a CPU it runs on MuJoCo C (impl c: 10x MJX's speed there, README); on a GPU on MJX.
-# cpu: what trains on a 2-core CPU in about 40 minutes (~2,100 env steps/s: 5M steps) with the
-# ant's batch (256 envs x 8 minibatches x unroll 10, 4 epochs), a 2x256 policy MLP, entropy 1e-3,
-# gradient clipping and a PPO clip of 0.2. Without the clipping this policy had KL jumps of up to
-# 38,254 between successive policies and collapsed; Brax's 4x32 policy with entropy 1e-2 stayed
-# upright 80% of the time. Measured with this preset: rodent_run upright the whole episode from
-# 0.5M steps, but with the episode ending beyond 60° of tilt no forward gait in 5M (seed 0: 0.07 m/s;
-# seed 1: 0.30 m/s as a hunched lunge that tips over, upright 75% of the time). Ending it beyond 45°
-# (rodent_run's default since, `run.RODENT_RUN`) keeps three seeds upright 87-100% and gave the only
-# gaits: seed 0 0.26 m/s at 5.1M, 0.69 m/s (a bound) at 5.6M, back to standing at 6.1M; seed 1
-# 0.11-0.22 m/s; seed 2 0.69 m/s at 3.1M, then backwards at 4.6M. The learning rate stays constant:
-# decaying it to 0 (ppo.learning_rate_final=0) gave seed 0 0.37 m/s upright at 5.1M but seeds 1
-# and 2 0.09 and 0.05 m/s, and a KL-adaptive rate (ppo.desired_kl=0.01) seed 0 0.03 m/s. A normal
-# policy with one learned scale per action (network.distribution_type=normal, init_noise_std 0.2)
-# keeps the KL at 0.02-0.12 (this preset's: up to 52) but oscillates the same way: with the decay
-# seed 0 ran at 0.54 m/s upright at 3.1M and stood at 5.1M, seed 1 never passed 0.26 m/s.
+# cpu (the rat's three envs): the ant's batch (256 envs x 8 minibatches x unroll 10, 4 epochs), a
+# 2x256 policy MLP, entropy 1e-3, gradient clipping and a PPO clip of 0.2, 5M steps: 21-25 minutes
+# at 3,600-4,200 env steps/s on the last machine measured (about 40 at the ~2,100 of earlier ones).
+# Without the clipping this policy had KL jumps of up to 38,254 between successive policies and
+# collapsed; Brax's 4x32 policy with entropy 1e-2 stayed upright 80% of the time.
+# rodent_run: what made the rat run was a compass. dm_control's proprioception senses tilt but
+# not yaw, and the run pays world-x velocity: before `observe_heading` (run.RODENT_RUN) every gait
+# found was lost again within 0.5-1M steps (0.69 m/s at one evaluation of two seeds, standing at
+# the next; none of a 45-degree tilt check, learning-rate decay, a KL-adaptive rate or a normal
+# policy held it), and the best runner's episodes curved 10-160 degrees off +x. With the heading the
+# preset's seed 0 ran at 1.57 m/s upright through whole episodes at 4.6M steps but fell at 5.1M;
+# with the learning rate also decaying linearly to 0 over the run (`_RODENT_RUN_PRESETS`) seeds 0
+# and 1 end the 5M steps running at 1.79 and 1.76 m/s, upright 97-99% (README, Does every task learn?).
 # rodent_escape_bowl: upright and 8.7x the untrained reward in 3.5M, no escape; rodent_run_gaps no
 # better than untrained in 4M with dm_control's task; with the episode ending beyond 45° of tilt
 # (env_config.healthy_min_upright) and warm-started from a running rat, 1.1-1.4 m along the
@@ -74,6 +72,10 @@ _RODENT_PRESETS = _c_on_cpu(
     },
     gpu={"ppo": {"num_envs": 2048}},  # the seed notebooks' rodent setting (README: CLI, presets)
 )
+# rodent_run's cpu preset also decays the learning rate linearly to 0 over the run: the rat's policy
+# otherwise keeps taking large steps late (KL up to 98 between successive policies) and a runner
+# at 1.57 m/s fell within 2 s one evaluation later (README, Does every task learn?).
+_RODENT_RUN_PRESETS = config_lib.merge(_RODENT_PRESETS, {"cpu": {"ppo": {"learning_rate_final": 0.0}}})
 
 # The ant and the humanoid on a CPU: MuJoCo C physics (ant_run trains 1.7x faster than on MJX
 # there; env steps 2.1x (humanoid) to 13x (ant in the bowl) MJX's: README, Physics on a CPU); the
@@ -203,7 +205,7 @@ _REGISTRY: dict[str, Entry] = {
         run.Run,
         run.RODENT_RUN,
         "dm_control's rat runs forward on a flat floor.",
-        _RODENT_PRESETS,
+        _RODENT_RUN_PRESETS,
     ),
     "rodent_run_gaps": Entry(
         run_gaps.RunGaps,
@@ -240,7 +242,7 @@ _REGISTRY: dict[str, Entry] = {
         run.Run,
         run.RODENT_RUN,
         "Run task for any walker (walker=..., or walker_xml=FILE root_body=NAME).",
-        _RODENT_PRESETS,
+        _RODENT_RUN_PRESETS,
     ),
     "run_gaps": Entry(
         run_gaps.RunGaps,

@@ -175,6 +175,11 @@ tasks end episodes) the cpu preset's two seeds stood (0.07 m/s) or lunged and ti
 m/s, upright 75%); at 45° three seeds stayed upright 87-100% of the episode and the only gaits
 appeared (0.69 m/s at one evaluation of seeds 0 and 2, not stable; README, Does every task
 learn?). 0.7071 (not `base.UPRIGHT_COS`, 0.70711) is the value those runs measured.
+Heading: the rat observes the world x-axis in its torso frame (`observe_heading`). Without it
+every gait above was lost again: the policy could not see which way it faced, its runs curved
+10-160° off +x within an episode (the decayed normal policy's best checkpoint, 16 episodes), and
+the x-velocity that pays fell with the turn; with it the cpu preset's seed 0 ran at 1.57 m/s,
+upright through all 64 evaluation episodes, at 4.6M steps (README, Does every task learn?).
 """
 
 
