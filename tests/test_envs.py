@@ -728,3 +728,14 @@ def test_the_rat_observes_its_heading_and_the_ant_can():
     assert ant.observation_layout()[-2:] == [("heading", 3), ("clock", 2)]
     first = jax.jit(ant.reset)(jax.random.PRNGKey(1))
     assert first.obs.shape == (ant.observation_size,) and np.allclose(first.obs[-5:-2], [1, 0, 0], atol=0.05)
+    # The corridor and the bowl put it right after the proprioception (a rodent_run parent's layout
+    # stays a prefix, so `--init-from` a running rat works); off by default there.
+    for name in ("ant_run_gaps", "ant_escape_bowl"):
+        plain, other = vnl.make(name, impl="c"), vnl.make(name, impl="c", observe_heading=True)
+        at = len(other.proprioception_layout())
+        assert other.observation_layout()[at] == ("heading", 3) and "heading" not in dict(plain.observation_layout())
+        assert other.observation_layout()[:at] + other.observation_layout()[at + 1 :] == plain.observation_layout()
+        s0 = jax.jit(other.reset)(jax.random.PRNGKey(2))
+        start = sum(w for _, w in other.observation_layout()[:at])
+        assert s0.obs.shape == (other.observation_size,)
+        np.testing.assert_allclose(s0.obs[start : start + 3], s0.data.xmat[other._root][0], atol=1e-6)

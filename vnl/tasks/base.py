@@ -59,6 +59,12 @@ class WalkerTaskConfig:
     # phase signal the policy can turn into a rhythmic gait (legged-locomotion RL's gait clock);
     # None: no clock.
     clock_period: float | None = None
+    # Add `heading` to the observation, right after the proprioception: the world x-axis (the run's
+    # and the corridor's forward direction) in the root body's frame, 3 numbers: a compass.
+    # dm_control's proprioception senses tilt (`world_zaxis`) but not yaw, so without it a walker
+    # cannot tell which way is forward once it has turned: the rat's running policy drifted
+    # 10-160° off +x over its 10 s episodes (README, Does every task learn?). rodent_run's default.
+    observe_heading: bool = False
 
     def validate(self) -> None:
         if self.impl == "warp":
@@ -371,6 +377,16 @@ class WalkerTask(Env):
             layout.append(("appendages_pos", 3 * n_app))
         layout += [("world_zaxis", 3), ("velocimeter", 3), ("gyro", 3)]
         return layout
+
+    def heading_layout(self) -> list[tuple[str, int]]:
+        """[("heading", 3)] with `observe_heading`, else []: a task's observation layout puts it
+        right after the proprioception (or the state), so a warm start adds or keeps it in place."""
+        return [("heading", 3)] if self._config.observe_heading else []
+
+    def heading(self, data: mjx.Data) -> list[jax.Array]:
+        """[the world x-axis in the root's frame (xmat's first row), shape (3,)] with
+        `observe_heading`, else []."""
+        return [data.xmat[self._root][0]] if self._config.observe_heading else []
 
     def clock_layout(self) -> list[tuple[str, int]]:
         """[("clock", 2)] with `clock_period`, else []: append to a task's observation layout."""

@@ -159,7 +159,8 @@ class EscapeBowl(WalkerTask):
 
     def _obs(self, data: mjx.Data) -> jax.Array:
         origin = -data.xpos[self._root] @ data.xmat[self._root]
-        return jp.concatenate([self.proprioception(data), origin.astype(jp.float32), *self.clock(data)])
+        parts = [self.proprioception(data), *self.heading(data), origin.astype(jp.float32), *self.clock(data)]
+        return jp.concatenate(parts).astype(jp.float32)
 
     def observation_layout(self) -> list[tuple[str, int]]:
-        return self.proprioception_layout() + [("origin", 3)] + self.clock_layout()
+        return self.proprioception_layout() + self.heading_layout() + [("origin", 3)] + self.clock_layout()

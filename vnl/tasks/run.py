@@ -50,12 +50,6 @@ class RunConfig(WalkerTaskConfig):
     """
 
     observation: Literal["state", "proprioception"] = "state"
-    # Add `heading` to the observation: the world x-axis (the rewarded direction) in the root
-    # body's frame, 3 numbers: a compass. dm_control's proprioception senses tilt (`world_zaxis`)
-    # but not yaw, so without it a walker cannot tell which way is forward once it has turned;
-    # the rat's running policy drifted 10-160° off +x over its 10 s episodes and could not turn
-    # back (README, Does every task learn?). The state observation carries the root quaternion.
-    observe_heading: bool = False
     forward_reward_weight: float = 1.0
     forward_velocity_cap: float | None = None  # m/s; None: the forward reward grows with any speed
     healthy_reward: float = 1.0
@@ -306,7 +300,7 @@ class Run(WalkerTask):
         return ok.astype(jp.float32)
 
     def observation_layout(self) -> list[tuple[str, int]]:
-        heading = [("heading", 3)] if self._config.observe_heading else []
+        heading = self.heading_layout()
         if self._config.observation == "proprioception":
             return self.proprioception_layout() + heading + self.clock_layout()
         m = self._mj_model
@@ -327,6 +321,4 @@ class Run(WalkerTask):
                 data.cvel[1:].ravel(),
                 data.qfrc_actuator,
             ]
-        if self._config.observe_heading:
-            parts.append(data.xmat[self._root][0])  # world x in the root's frame: xmat's first row
-        return jp.concatenate(parts + self.clock(data)).astype(jp.float32)
+        return jp.concatenate(parts + self.heading(data) + self.clock(data)).astype(jp.float32)

@@ -273,10 +273,10 @@ class RunGaps(WalkerTask):
         return jp.min(data.geom_xpos[f.ids, 2] - reach, initial=jp.inf)  # inf: no colliding feet
 
     def _obs(self, data: mjx.Data, layout: gaps.Layout) -> jax.Array:
-        """Proprioception (+ `corridor` with `observe_corridor`, + `ground_ahead` with
-        `ground_scan`), shape (observation_size,)."""
+        """Proprioception (+ `heading` with `observe_heading`, + `corridor` with `observe_corridor`,
+        + `ground_ahead` with `ground_scan`), shape (observation_size,)."""
         cfg: RunGapsConfig = self._config
-        parts = [self.proprioception(data)]
+        parts = [self.proprioception(data), *self.heading(data)]
         if cfg.observe_corridor:
             parts.append(data.xmat[self._root][0])  # world x in the root's frame: xmat's first row
             parts.append((data.xpos[self._root, 1] / (0.5 * self._params.corridor_width))[None])
@@ -289,7 +289,7 @@ class RunGaps(WalkerTask):
         cfg: RunGapsConfig = self._config
         extra = [("corridor", 4)] if cfg.observe_corridor else []
         extra += [("ground_ahead", len(cfg.ground_scan))] if cfg.ground_scan else []
-        return self.proprioception_layout() + extra + self.clock_layout()
+        return self.proprioception_layout() + self.heading_layout() + extra + self.clock_layout()
 
     @property
     def corridor(self) -> gaps.GapsParams:
