@@ -383,10 +383,13 @@ class WalkerTask(Env):
         right after the proprioception (or the state), so a warm start adds or keeps it in place."""
         return [("heading", 3)] if self._config.observe_heading else []
 
+    def world_xaxis(self, data: mjx.Data) -> jax.Array:
+        """The world x-axis in the root body's frame (xmat's first row), shape (3,)."""
+        return data.xmat[self._root][0]
+
     def heading(self, data: mjx.Data) -> list[jax.Array]:
-        """[the world x-axis in the root's frame (xmat's first row), shape (3,)] with
-        `observe_heading`, else []."""
-        return [data.xmat[self._root][0]] if self._config.observe_heading else []
+        """[`world_xaxis`, shape (3,)] with `observe_heading`, else []."""
+        return [self.world_xaxis(data)] if self._config.observe_heading else []
 
     def clock_layout(self) -> list[tuple[str, int]]:
         """[("clock", 2)] with `clock_period`, else []: append to a task's observation layout."""

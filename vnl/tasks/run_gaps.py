@@ -278,7 +278,7 @@ class RunGaps(WalkerTask):
         cfg: RunGapsConfig = self._config
         parts = [self.proprioception(data), *self.heading(data)]
         if cfg.observe_corridor:
-            parts.append(data.xmat[self._root][0])  # world x in the root's frame: xmat's first row
+            parts.append(self.world_xaxis(data))  # the corridor's axis in the root's frame
             parts.append((data.xpos[self._root, 1] / (0.5 * self._params.corridor_width))[None])
         if cfg.ground_scan:
             points = data.xpos[self._root, 0] + jp.asarray(cfg.ground_scan, jp.float32)

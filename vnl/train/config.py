@@ -439,7 +439,7 @@ _PLAIN = (bool, int, float, str, type(None), tuple)
 def with_fields_added_since(values: dict[str, Any]) -> dict[str, Any]:
     """A saved run's values with the env config fields that vnl added after it was written.
 
-    A saved `env_config` is complete (`expanded`), so a field missing from it did not exist then.
+    A saved `env_config` is complete (`resolved`), so a field missing from it did not exist then.
     It takes the field's class default (by convention off: the behaviour before the field), not
     the env's current default: a run saved before `rodent_run` observed its heading rebuilds the
     env it trained, with the observation width of its checkpoints. Unknown envs pass unchanged
