@@ -110,8 +110,10 @@ class RunGapsConfig(WalkerTaskConfig):
             raise VnlError(f"corridor.gap_length must be (low, high) with 0 <= low <= high, got {(glo, ghi)}")
         if c.corridor_width <= 0 or c.corridor_length <= 0:
             raise VnlError("corridor.corridor_width and corridor.corridor_length must be > 0")
-        if c.behind < 0 or c.ahead < 0 or c.visual_ahead < 0:
-            raise VnlError("corridor.behind, corridor.ahead and corridor.visual_ahead must be >= 0")
+        if c.behind < 0 or c.ahead < 0 or c.visual_ahead < 0 or c.max_geom_pairs < 0:
+            raise VnlError(
+                "corridor.behind, corridor.ahead, corridor.visual_ahead and corridor.max_geom_pairs must be >= 0"
+            )
         if self.contact_termination and self.impl == "c":
             raise VnlError(
                 "contact_termination reads MJX's contact list, which MuJoCo C physics does not return; "
