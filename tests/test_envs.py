@@ -770,3 +770,30 @@ def test_the_rat_observes_its_heading_and_the_ant_can():
         start = sum(w for _, w in other.observation_layout()[:at])
         assert s0.obs.shape == (other.observation_size,)
         np.testing.assert_allclose(s0.obs[start : start + 3], s0.data.xmat[other._root][0], atol=1e-6)
+
+
+@pytest.mark.xdist_group("rodent_run-c")
+def test_foot_slip_cost_charges_a_sliding_stance_foot_and_nothing_else():
+    """`foot_slip_cost_weight`: a settled rat slid 1 cm sideways over one 20-ms control step moves
+    each of its feet's geoms on the floor at 0.5 m/s, and pays weight x 0.5 x their number; lifted
+    2 cm as well, no geom is in stance and it pays nothing. The step logs the term; off by default."""
+    w = 2.0
+    e = vnl.make("rodent_run", impl="c", foot_slip_cost_weight=w)
+    s = jax.jit(e.reset)(jax.random.PRNGKey(0))
+    step = jax.jit(e.step)
+    for _ in range(25):  # settle on the floor at zero action
+        s = step(s, jp.zeros(e.action_size))
+    data0 = s.data
+    moved = lambda dx, dz: e.forward(e.make_data(qpos=data0.qpos.at[0].add(dx).at[2].add(dz)))  # noqa: E731
+    stance = int((np.asarray(e._slip_feet.lowest(data0)) < e.config.foot_contact_height).sum())
+    assert stance >= 4  # feet and hands on the floor
+    np.testing.assert_allclose(float(e.foot_slip(data0, moved(0.0, 0.0))), 0.0, atol=1e-6)
+    np.testing.assert_allclose(float(e.foot_slip(data0, moved(0.01, 0.0))), 0.5 * stance, rtol=1e-3)
+    assert float(e.foot_slip(data0, moved(0.01, 0.02))) == 0.0
+    nxt = step(s, jp.zeros(e.action_size))
+    np.testing.assert_allclose(float(nxt.metrics["reward/foot_slip"]), -w * float(nxt.metrics["foot_slip"]), rtol=1e-6)
+    terms = sum(float(v) for k, v in nxt.metrics.items() if k.startswith("reward/"))
+    np.testing.assert_allclose(terms, float(nxt.reward), rtol=1e-5, atol=1e-6)
+    assert "reward/foot_slip" not in env("rodent_run", "c").reset(jax.random.PRNGKey(0)).metrics
+    with pytest.raises(VnlError, match="foot_slip_cost_weight"):
+        vnl.make("rodent_run", impl="c", foot_slip_cost_weight=-1.0)

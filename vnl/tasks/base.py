@@ -267,6 +267,38 @@ def _root_free_qposadr(model: mujoco.MjModel) -> int:
     raise VnlError("the walker has no free joint")
 
 
+@dataclasses.dataclass(frozen=True)
+class FootGeoms:
+    """The colliding geoms of some bodies (a walker's feet), with what `lowest` needs: capsules
+    (and spheres, capsules of no length) reach |axis_z| x half-length + radius below their centre;
+    other shapes are bounded by their bounding sphere (`geom_rbound`), a lower bound."""
+
+    ids: np.ndarray
+    capsule: np.ndarray
+    half_length: np.ndarray
+    radius: np.ndarray
+    rbound: np.ndarray
+
+    @staticmethod
+    def of(model: mujoco.MjModel, bodies: list[int]) -> FootGeoms:
+        ids = [
+            g
+            for g in range(model.ngeom)
+            if model.geom_bodyid[g] in bodies and (model.geom_contype[g] or model.geom_conaffinity[g])
+        ]
+        ids_ = np.asarray(ids, dtype=int)
+        kind = model.geom_type[ids_]
+        capsule = (kind == mujoco.mjtGeom.mjGEOM_CAPSULE) | (kind == mujoco.mjtGeom.mjGEOM_SPHERE)
+        half = np.where(kind == mujoco.mjtGeom.mjGEOM_CAPSULE, model.geom_size[ids_, 1], 0.0)
+        return FootGeoms(ids_, capsule, half.astype(np.float32), model.geom_size[ids_, 0], model.geom_rbound[ids_])
+
+    def lowest(self, data: mjx.Data) -> jax.Array:
+        """The height (m) of each geom's lowest point, shape (len(ids),)."""
+        axis_z = jp.abs(data.geom_xmat[self.ids, 2, 2])  # the geom's z-axis (a capsule's axis) · world z
+        reach = jp.where(self.capsule, axis_z * self.half_length + self.radius, self.rbound)
+        return data.geom_xpos[self.ids, 2] - reach
+
+
 class WalkerTask(Env):
     """Base of the walker tasks: indices resolved by name, proprioception, subtree velocities.
 
@@ -303,6 +335,11 @@ class WalkerTask(Env):
         self._joint_qvel = np.asarray(qvel_idx, dtype=int)
         self._free_qpos = _root_free_qposadr(model) if not walker.standalone else None
         self._body_rootid = np.asarray(model.body_rootid)
+
+    def end_effector_subtrees(self) -> list[int]:
+        """The bodies of the end effectors' subtrees (a foot's toes, a hand's fingers), sorted."""
+        m = self._mj_model
+        return sorted({b for e in self._ends for b in range(m.nbody) if self._is_in_subtree(m, b, int(e))})
 
     @staticmethod
     def _is_in_subtree(model: mujoco.MjModel, body: int, root: int) -> bool:

@@ -32,6 +32,7 @@ from vnl.env import State
 from vnl.errors import VnlError
 from vnl.physics import mjx_physics
 from vnl.tasks.base import (
+    FootGeoms,
     WalkerTask,
     WalkerTaskConfig,
     build_walker,
@@ -63,6 +64,13 @@ class RunConfig(WalkerTaskConfig):
     # Actuator gears (one per actuator) replacing the model's, e.g. Brax's humanoid env's gears for
     # its positional/spring pipelines (README, physics backends); None keeps the model's.
     actuator_gear: tuple[float, ...] | None = None
+    # Foot-slip cost: -foot_slip_cost_weight x `foot_slip`, the summed horizontal speed (m/s) of
+    # the end effectors' colliding geoms that touch the floor (lowest point below
+    # `foot_contact_height`) at both ends of the control step: a stance foot that slides. 0: off
+    # (no `reward/foot_slip` term). The rat's floor gait skidded a hind toe at ~0.7 m/s, a gait that
+    # caught on cracks and slid on the bowl's slope (README, Does every task learn?).
+    foot_slip_cost_weight: float = 0.0
+    foot_contact_height: float = 0.005
 
     def validate(self) -> None:
         super().validate()
@@ -88,6 +96,11 @@ class RunConfig(WalkerTaskConfig):
             raise VnlError(f"forward_velocity_cap must be > 0 m/s (null: no cap), got {self.forward_velocity_cap}")
         if self.floor_size <= 0:
             raise VnlError(f"floor_size must be > 0, got {self.floor_size}")
+        if not (self.foot_slip_cost_weight >= 0 and self.foot_contact_height > 0):
+            raise VnlError(
+                f"foot_slip_cost_weight must be >= 0 and foot_contact_height > 0 m, got "
+                f"{self.foot_slip_cost_weight} and {self.foot_contact_height}"
+            )
         if self.actuator_gear is not None and not all(g > 0 for g in self.actuator_gear):
             raise VnlError(f"actuator_gear must be positive numbers, one per actuator, got {list(self.actuator_gear)}")
 
@@ -200,6 +213,9 @@ class Run(WalkerTask):
         # The free joint's x/y are excluded from the state observation (translation invariance).
         self._obs_qpos_start = 2
         self._spawn_z = None if walker.standalone else spawn_height(model)
+        self._slip_feet = FootGeoms.of(model, self.end_effector_subtrees())
+        if config.foot_slip_cost_weight > 0 and not len(self._slip_feet.ids):
+            raise VnlError("foot_slip_cost_weight: this walker's end effectors have no colliding geoms; use 0")
         self._brax = None
         if config.backend != "mjx":
             from vnl.physics.brax_pipelines import BraxPhysics
@@ -230,6 +246,8 @@ class Run(WalkerTask):
             "physics_nan": zero,
             "measure/upright_time": zero,
         }
+        if cfg.foot_slip_cost_weight > 0:
+            metrics |= {"reward/foot_slip": zero, "foot_slip": zero}
         info = {"rng": rng}
         if self._brax is not None:
             info["pipeline"] = self._brax.init(qpos, qvel)
@@ -268,6 +286,10 @@ class Run(WalkerTask):
         ctrl_cost = -cfg.ctrl_cost_weight * jp.sum(jp.square(action))
         ok = 1.0 - blew_up
         terms = {"forward": forward * ok, "healthy": healthy_term * ok, "ctrl_cost": ctrl_cost * ok}
+        slip = {}
+        if cfg.foot_slip_cost_weight > 0:
+            slip = {"foot_slip": self.foot_slip(data0, data) * ok}
+            terms["foot_slip"] = -cfg.foot_slip_cost_weight * slip["foot_slip"]
         reward = sum(terms.values())
 
         unhealthy_done = (1.0 - healthy) if cfg.terminate_when_unhealthy else 0.0
@@ -285,8 +307,18 @@ class Run(WalkerTask):
             "physics_nan": blew_up,
             # Seconds upright and healthy (summed over an episode: the time it stayed up).
             "measure/upright_time": self.dt * healthy * self.is_upright(data) * ok,
+            **slip,
         }
         return state.replace(data=data, obs=self._obs(data), reward=reward, done=done, metrics=metrics, info=info)
+
+    def foot_slip(self, data0: mjx.Data, data: mjx.Data) -> jax.Array:
+        """The summed horizontal speed (m/s, a scalar) over the control step from `data0` to
+        `data` of the end effectors' colliding geoms whose lowest point is below
+        `foot_contact_height` at both ends of the step (in stance on the floor)."""
+        f, h = self._slip_feet, self._config.foot_contact_height
+        stance = (f.lowest(data0) < h) & (f.lowest(data) < h)
+        speed = jp.linalg.norm(data.geom_xpos[f.ids, :2] - data0.geom_xpos[f.ids, :2], axis=-1) / self.dt
+        return jp.sum(jp.where(stance, speed, 0.0))
 
     @property
     def backend(self) -> str:

@@ -30,7 +30,6 @@ from typing import Literal
 
 import jax
 import jax.numpy as jp
-import mujoco
 import numpy as np
 from mujoco import mjx
 
@@ -39,6 +38,7 @@ from vnl.arenas import gaps
 from vnl.env import State
 from vnl.errors import VnlError
 from vnl.tasks.base import (
+    FootGeoms,
     WalkerTask,
     WalkerTaskConfig,
     build_walker,
@@ -176,12 +176,12 @@ class RunGaps(WalkerTask):
         self._spawn_z = spawn_height(model, config.spawn_x, 0.0, mocap_pos=mocap)
         self._low_bodies = self._ends if len(self._ends) else np.asarray([self._root])
         # Contact termination: walker geoms outside the end effectors' subtrees vs platforms.
-        feet_bodies = {b for e in self._ends for b in range(model.nbody) if self._is_in_subtree(model, b, int(e))}
+        feet_bodies = set(self.end_effector_subtrees())
         walker_bodies = set(self._walker_bodies.tolist())
         walker_geoms = [g for g in range(model.ngeom) if model.geom_bodyid[g] in walker_bodies]
         self._nonfoot = np.asarray([g for g in walker_geoms if model.geom_bodyid[g] not in feet_bodies], dtype=int)
         feet = sorted(feet_bodies) if len(self._ends) else [self._root]
-        self._feet = _FootGeoms.of(model, feet)
+        self._feet = FootGeoms.of(model, feet)
         if config.terminate_foot_below is not None and not len(self._feet.ids):
             raise VnlError("terminate_foot_below: the walker's end effectors have no colliding geoms; use null")
         self._ground = np.asarray(
@@ -269,10 +269,7 @@ class RunGaps(WalkerTask):
     def feet_lowest(self, data: mjx.Data) -> jax.Array:
         """The height (m) of the lowest point of the end effectors' colliding geoms, a scalar
         (walkers without end effectors: the root body's geoms)."""
-        f = self._feet
-        axis_z = jp.abs(data.geom_xmat[f.ids, 2, 2])  # the geom's z-axis (a capsule's axis) · world z
-        reach = jp.where(f.capsule, axis_z * f.half_length + f.radius, f.rbound)
-        return jp.min(data.geom_xpos[f.ids, 2] - reach, initial=jp.inf)  # inf: no colliding feet
+        return jp.min(self._feet.lowest(data), initial=jp.inf)  # inf: no colliding feet
 
     def _obs(self, data: mjx.Data, layout: gaps.Layout) -> jax.Array:
         """Proprioception (+ `heading` with `observe_heading`, + `corridor` with `observe_corridor`,
@@ -296,29 +293,3 @@ class RunGaps(WalkerTask):
     @property
     def corridor(self) -> gaps.GapsParams:
         return self._params
-
-
-@dataclasses.dataclass(frozen=True)
-class _FootGeoms:
-    """The colliding geoms of some bodies, with what `RunGaps.feet_lowest` needs: capsules (and
-    spheres, capsules of no length) reach |axis_z| x half-length + radius below their centre;
-    other shapes are bounded by their bounding sphere (`geom_rbound`), a lower bound."""
-
-    ids: np.ndarray
-    capsule: np.ndarray
-    half_length: np.ndarray
-    radius: np.ndarray
-    rbound: np.ndarray
-
-    @staticmethod
-    def of(model: mujoco.MjModel, bodies: list[int]) -> _FootGeoms:
-        ids = [
-            g
-            for g in range(model.ngeom)
-            if model.geom_bodyid[g] in bodies and (model.geom_contype[g] or model.geom_conaffinity[g])
-        ]
-        ids_ = np.asarray(ids, dtype=int)
-        kind = model.geom_type[ids_]
-        capsule = (kind == mujoco.mjtGeom.mjGEOM_CAPSULE) | (kind == mujoco.mjtGeom.mjGEOM_SPHERE)
-        half = np.where(kind == mujoco.mjtGeom.mjGEOM_CAPSULE, model.geom_size[ids_, 1], 0.0)
-        return _FootGeoms(ids_, capsule, half.astype(np.float32), model.geom_size[ids_, 0], model.geom_rbound[ids_])
