@@ -604,7 +604,7 @@ def test_mjx_corridor_finds_every_contact_mujoco_c_finds(name, impl):
     platform is 2 overlapping boxes and abuts the next, and where a geom touches two, C and MJX's
     capsule-box routines may report different ones of them.) MJX's broad-phase cull
     (`corridor.max_geom_pairs`, 16 until 2026-11-26) ranks pairs by bounding spheres, and a
-    platform's holds the whole walker: it dropped the rat's feet in 11% of states
+    platform's holds the whole walker: it dropped penetrating contacts of the rat in 11% of states
     (benchmarks/mjx_broadphase.py), and the rat blew up."""
     e = env(name, impl)
     m = e.mj_model
