@@ -26,12 +26,11 @@ import argparse
 import dataclasses
 import platform
 import statistics
-import time
 from collections.abc import Callable
 
 import jax
-import jax.numpy as jp
 import numpy as np
+from env_throughput import _reset, _seconds  # benchmarks/ is this script's directory
 from mujoco import mjx
 
 import vnl
@@ -46,7 +45,7 @@ def make(name: str, pairs: int) -> vnl.Env:
 def random_rollout(env: vnl.Env, batch: int, steps: int) -> Callable[[], tuple[jax.Array, jax.Array, jax.Array]]:
     """A call returning every step's qpos (steps, batch, nq), mocap_pos (steps, batch, nmocap, 3)
     and physics_nan (steps, batch)."""
-    state = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(0), batch))
+    state = _reset(env, batch)
     actions = jax.random.uniform(jax.random.PRNGKey(1), (steps, batch, env.action_size), minval=-1, maxval=1)
 
     @jax.jit
@@ -89,12 +88,6 @@ def lost_contacts(full: tuple[np.ndarray, np.ndarray], culled: tuple[np.ndarray,
     return float(hit.mean()), float(missing[hit].mean()) if hit.any() else 0.0
 
 
-def seconds(fn: Callable[[], object]) -> float:
-    t = time.perf_counter()
-    jax.block_until_ready(fn())
-    return time.perf_counter() - t
-
-
 def measure(name: str, pairs: list[int], batch: int, steps: int, rounds: int) -> None:
     envs = {k: make(name, k) for k in pairs}
     runs = {k: random_rollout(e, batch, steps) for k, e in envs.items()}
@@ -104,7 +97,7 @@ def measure(name: str, pairs: list[int], batch: int, steps: int, rounds: int) ->
     times: dict[int, list[float]] = {k: [] for k in pairs}
     for _ in range(rounds):
         for k in pairs:
-            times[k].append(seconds(runs[k]))
+            times[k].append(_seconds(runs[k]))
     n = batch * steps
     for k in pairs:
         nan = np.asarray(out[k][2])
@@ -135,5 +128,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    jp.zeros(())  # initialise the backend before timing
     main()

@@ -176,11 +176,11 @@ class RunGaps(WalkerTask):
         self._spawn_z = spawn_height(model, config.spawn_x, 0.0, mocap_pos=mocap)
         self._low_bodies = self._ends if len(self._ends) else np.asarray([self._root])
         # Contact termination: walker geoms outside the end effectors' subtrees vs platforms.
-        feet_bodies = set(self.end_effector_subtrees())
+        feet_bodies = self.end_effector_subtrees()
         walker_bodies = set(self._walker_bodies.tolist())
         walker_geoms = [g for g in range(model.ngeom) if model.geom_bodyid[g] in walker_bodies]
         self._nonfoot = np.asarray([g for g in walker_geoms if model.geom_bodyid[g] not in feet_bodies], dtype=int)
-        feet = sorted(feet_bodies) if len(self._ends) else [self._root]
+        feet = feet_bodies if len(self._ends) else [self._root]
         self._feet = FootGeoms.of(model, feet)
         if config.terminate_foot_below is not None and not len(self._feet.ids):
             raise VnlError("terminate_foot_below: the walker's end effectors have no colliding geoms; use null")
