@@ -50,6 +50,47 @@ def terrain(params: BowlParams) -> np.ndarray:
     return bowl_shape * smooth[:res, :res]
 
 
+@dataclasses.dataclass(frozen=True)
+class RingSlope:
+    """The terrain's slope and height in the ring `inner` <= r < `outer` (m) around the centre."""
+
+    inner: float
+    outer: float
+    median_deg: float  # median slope of the heightfield's cells in the ring, degrees
+    p90_deg: float  # 90th percentile
+    steeper_than_15: float  # fraction of the ring's cells steeper than 15°
+    median_height: float  # m
+
+
+def slope_profile(params: BowlParams, ring: float = 0.5) -> list[RingSlope]:
+    """How steep the bowl is at each distance from the centre, rings of width `ring` (m) out to
+    `half_size`: what a walker must climb to escape. The slope is that of the heightfield as
+    MuJoCo interpolates it (finite differences between its points). Smooth (smoothness 1), the
+    bowl's steepest slope is atan(π·height/half_size), 14.7° for dm_control's bowl, at a quarter
+    and three quarters of the radius; the bumps make it steeper (README, Does every task learn?)."""
+    z = terrain(params) * params.height
+    cell = 2 * params.half_size / (params.nrow - 1)
+    dz_drow, dz_dcol = np.gradient(z, cell)
+    slope = np.degrees(np.arctan(np.hypot(dz_drow, dz_dcol)))
+    axis = np.linspace(-params.half_size, params.half_size, params.nrow)
+    radius = np.hypot(axis[None, :], axis[:, None])
+    rings = []
+    for inner in np.arange(0.0, params.half_size, ring):
+        cells = (radius >= inner) & (radius < inner + ring)
+        s = slope[cells]
+        rings.append(
+            RingSlope(
+                float(inner),
+                float(inner + ring),
+                float(np.median(s)),
+                float(np.percentile(s, 90)),
+                float(np.mean(s > 15.0)),
+                float(np.median(z[cells])),
+            )
+        )
+    return rings
+
+
 def build(params: BowlParams) -> mjcf.RootElement:
     """The bowl's MJCF; call `write_terrain` on the compiled model to fill the heightfield."""
     root = arena_base.new_arena("bowl", "ground", (0.2, 0.3, 0.4), (0.25, 0.35, 0.45), (40, 40), texuniform=False)

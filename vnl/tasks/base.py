@@ -65,6 +65,14 @@ class WalkerTaskConfig:
     # cannot tell which way is forward once it has turned: the rat's running policy drifted
     # 10-160° off +x over its 10 s episodes (README, Does every task learn?). rodent_run's default.
     observe_heading: bool = False
+    # Tilt gravity by this many degrees about the world y-axis so that the floor is an incline
+    # rising along +x (the run's and the corridor's forward direction; negative: downhill). The
+    # floor stays the world's xy-plane, so the forces are those of a real slope but `world_zaxis`
+    # is the floor's normal, not gravity's up: the walker feels the slope only through its
+    # dynamics (dm_control's walkers sense gravity through an accelerometer, not observed here).
+    # A probe of how steep a trained gait climbs (`vnl eval RUN --set env_config.incline=10`) and a
+    # curriculum knob (README, Does every task learn?, the rat in the bowl).
+    incline: float = 0.0
 
     def validate(self) -> None:
         if self.impl == "warp":
@@ -79,6 +87,8 @@ class WalkerTaskConfig:
             raise VnlError(f"physics_timestep {self.physics_timestep} s is too large to be stable; use <= 0.05")
         if self.reset_noise_scale < 0:
             raise VnlError(f"reset_noise_scale must be >= 0, got {self.reset_noise_scale}")
+        if not -45.0 < self.incline < 45.0:
+            raise VnlError(f"incline is the floor's slope in degrees, in (-45, 45); got {self.incline}")
         if self.walker_xml:
             path = Path(self.walker_xml).expanduser()
             if not path.is_file():
@@ -184,8 +194,12 @@ def _add_tracking_camera(walker: Walker, size: float) -> None:
 
 
 def set_physics_options(model: mujoco.MjModel, config: WalkerTaskConfig) -> None:
-    """Timestep, solver and cone from `config`; the sensor stage off (observations use the state)."""
+    """Timestep, solver, cone and `incline` (gravity's tilt) from `config`; the sensor stage off
+    (observations use the state)."""
     model.opt.timestep = config.physics_timestep
+    if config.incline:
+        g, tilt = float(np.linalg.norm(model.opt.gravity)), np.radians(config.incline)
+        model.opt.gravity[:] = (-g * np.sin(tilt), 0.0, -g * np.cos(tilt))
     model.opt.solver = {"newton": mujoco.mjtSolver.mjSOL_NEWTON, "cg": mujoco.mjtSolver.mjSOL_CG}[config.solver]
     model.opt.iterations = config.iterations
     model.opt.ls_iterations = config.ls_iterations
