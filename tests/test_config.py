@@ -39,6 +39,7 @@ def test_defaults_and_overrides_make_new_configs():
         ("network.activation=gelu", ["network.activation", "swish"]),
         ("network.policy_hidden_layer_sizes=[]", ["policy_hidden_layer_sizes"]),
         ("env_config.reset_noise_scale=-1", ["reset_noise_scale", ">= 0"]),
+        ("env_config.incline=50", ["incline", "(-45, 45)"]),
         ("env_config.nonsense=3", ["nonsense", "valid keys"]),
         ("env_config.healthy_z_range=[1.0, 0.5]", ["healthy_z_range"]),
         ("ppo.desired_kl=0", ["desired_kl", "> 0"]),

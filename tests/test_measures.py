@@ -96,36 +96,3 @@ def test_summary_and_records_derive_fractions_and_escape_times():
     assert s["time_to_escape"]["mean"] == pytest.approx(0.75)  # (1.0 + 0.5) / 2, the escapers only
     record = make_record(7, 1.0, {"eval/episode_measure/upright_time": 3.0}, episode_seconds=4.0)
     assert record["eval/upright_fraction"] == 0.75
-
-
-def test_bowl_slope_profile_smooth_peaks_at_the_formula_and_bumps_steepen_it():
-    from vnl.arenas import bowl
-
-    smooth = bowl.slope_profile(bowl.BowlParams(smoothness=1.0))
-    expected = np.degrees(np.arctan(np.pi * 0.5 / 6.0))  # 14.7°: dh/dr of 0.5·(1 - cos(2πr/6))/2
-    assert max(r.p90_deg for r in smooth) == pytest.approx(expected, abs=0.3)
-    steepest = max(smooth, key=lambda r: r.median_deg)
-    assert steepest.inner in (1.0, 1.5, 4.0, 4.5)  # around a quarter and three quarters of the radius
-    assert all(r.steeper_than_15 == 0 for r in smooth)
-    assert smooth[0].median_deg < 1.0  # the flat floor inside the clipped radius (0.6 m)
-    bumpy = bowl.slope_profile(bowl.BowlParams())  # dm_control's: smoothness 0.5
-    ridge = [r for r in bumpy if 2.0 <= r.inner < 4.0]
-    assert min(r.median_deg for r in ridge) > 20.0  # ~27-30° on the ridge
-    assert [r.outer for r in bumpy][-1] == 6.0 and len(bumpy) == 12
-
-
-@pytest.mark.xdist_group("ant_run-c")
-def test_incline_tilts_gravity_so_the_floor_rises_along_x():
-    flat, tilted = vnl.make("ant_run", impl="c"), vnl.make("ant_run", impl="c", incline=20.0)
-    g = 9.81
-    assert np.asarray(flat._mj_model.opt.gravity) == pytest.approx([0, 0, -g])
-    t = np.radians(20.0)
-    assert np.asarray(tilted._mj_model.opt.gravity) == pytest.approx([-g * np.sin(t), 0, -g * np.cos(t)], rel=1e-6)
-    for env, ax in ((flat, 0.0), (tilted, -g * np.sin(t))):
-        state = jax.jit(env.reset)(jax.random.PRNGKey(0))
-        qpos = state.data.qpos.at[2].set(3.0)  # in the air: nothing but gravity acts on the root
-        data = env.forward(state.data.replace(qpos=qpos, qvel=jp.zeros_like(state.data.qvel)))
-        state = jax.jit(env.step)(state.replace(data=data), jp.zeros(env.action_size))
-        assert float(state.data.qvel[0]) == pytest.approx(ax * env.dt, abs=1e-3)  # falling down the slope
-    with pytest.raises(vnl.VnlError, match="incline"):
-        vnl.make("ant_run", incline=50.0)

@@ -22,6 +22,7 @@ from dm_control import mjcf
 from scipy import ndimage
 
 from vnl.arenas import base as arena_base
+from vnl.errors import VnlError
 
 
 @dataclasses.dataclass(frozen=True)
@@ -64,10 +65,14 @@ class RingSlope:
 
 def slope_profile(params: BowlParams, ring: float = 0.5) -> list[RingSlope]:
     """How steep the bowl is at each distance from the centre, rings of width `ring` (m) out to
-    `half_size`: what a walker must climb to escape. The slope is that of the heightfield as
-    MuJoCo interpolates it (finite differences between its points). Smooth (smoothness 1), the
-    bowl's steepest slope is atan(π·height/half_size), 14.7° for dm_control's bowl, at a quarter
-    and three quarters of the radius; the bumps make it steeper (README, Does every task learn?)."""
+    `half_size`: what a walker must climb to escape. Returns one `RingSlope` per ring,
+    ceil(half_size / ring) of them, innermost first. The slope is the heightfield's gradient by
+    central differences over its points (MuJoCo's triangles between them can be a little steeper).
+    Smooth (smoothness 1), the bowl's steepest slope is atan(π·height/half_size), 14.7° for
+    dm_control's bowl, at a quarter and three quarters of the radius; the bumps make it steeper
+    (README, Does every task learn?)."""
+    if not ring > 0:
+        raise VnlError(f"slope_profile: ring (the rings' width, m) must be > 0, got {ring}")
     z = terrain(params) * params.height
     cell = 2 * params.half_size / (params.nrow - 1)
     dz_drow, dz_dcol = np.gradient(z, cell)

@@ -88,7 +88,7 @@ class WalkerTaskConfig:
         if self.reset_noise_scale < 0:
             raise VnlError(f"reset_noise_scale must be >= 0, got {self.reset_noise_scale}")
         if not -45.0 < self.incline < 45.0:
-            raise VnlError(f"incline is the floor's slope in degrees, in (-45, 45); got {self.incline}")
+            raise VnlError(f"incline (the floor's slope, degrees) must be in (-45, 45), got {self.incline}")
         if self.walker_xml:
             path = Path(self.walker_xml).expanduser()
             if not path.is_file():
