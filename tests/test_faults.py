@@ -193,9 +193,12 @@ def test_a_multi_process_run_never_aborts_one_process_alone():
 def test_registry_presets_and_config_mappings_are_frozen_copies():
     rodent_envs = ["rodent_run_gaps", "rodent_escape_bowl", "run_gaps", "escape_bowl", "rodent_run", "run"]
     presets = [registry.entry(n).presets for n in rodent_envs]
-    assert all(p == presets[0] for p in presets[:4]) and presets[4] == presets[5]
-    # rodent_run's cpu preset is the rat's with the learning rate decaying to 0 (registry comment)
+    assert presets[0] == presets[2] and presets[1] == presets[3] and presets[4] == presets[5]  # the aliases
+    # rodent_run's cpu preset is the rat's with the learning rate decaying to 0, the bowl's discounts
+    # by 0.99 on every device (registry comments)
     assert config_lib.merge(presets[0], {"cpu": {"ppo": {"learning_rate_final": 0.0}}}) == presets[4]
+    discount = {"ppo": {"discounting": 0.99}}
+    assert config_lib.merge(presets[0], {"cpu": discount, "gpu": discount}) == presets[1]
     assert len({id(p) for p in presets}) == len(presets)  # no two entries share one dict
     with pytest.raises(TypeError):
         presets[0]["cpu"]["ppo"]["num_envs"] = 8

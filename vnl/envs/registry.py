@@ -263,7 +263,7 @@ _REGISTRY: dict[str, Entry] = {
         escape_bowl.EscapeBowl,
         escape_bowl.RODENT_ESCAPE_BOWL,
         "Bowl escape task for any walker (walker_xml=...).",
-        _RODENT_PRESETS,
+        _RODENT_BOWL_PRESETS,
     ),
 }
 
