@@ -817,17 +817,17 @@ def test_bowl_slope_profile_smooth_peaks_at_the_formula_and_bumps_steepen_it():
 
 @pytest.mark.xdist_group("ant_run-c")
 def test_incline_tilts_gravity_so_the_floor_rises_along_x():
-    flat, tilted = vnl.make("ant_run", impl="c"), vnl.make("ant_run", impl="c", incline=20.0)
+    flat, tilted = env("ant_run", "c"), vnl.make("ant_run", impl="c", incline=20.0)  # flat: the shared one
     g = 9.81
     assert np.asarray(flat._mj_model.opt.gravity) == pytest.approx([0, 0, -g])
     t = np.radians(20.0)
     assert np.asarray(tilted._mj_model.opt.gravity) == pytest.approx([-g * np.sin(t), 0, -g * np.cos(t)], rel=1e-6)
-    for env, ax in ((flat, 0.0), (tilted, -g * np.sin(t))):
-        state = jax.jit(env.reset)(jax.random.PRNGKey(0))
+    for e, ax in ((flat, 0.0), (tilted, -g * np.sin(t))):
+        state = jax.jit(e.reset)(jax.random.PRNGKey(0))
         qpos = state.data.qpos.at[2].set(3.0)  # in the air: nothing but gravity acts on the root
-        data = env.forward(state.data.replace(qpos=qpos, qvel=jp.zeros_like(state.data.qvel)))
-        state = jax.jit(env.step)(state.replace(data=data), jp.zeros(env.action_size))
-        assert float(state.data.qvel[0]) == pytest.approx(ax * env.dt, abs=1e-3)  # falling down the slope
+        data = e.forward(state.data.replace(qpos=qpos, qvel=jp.zeros_like(state.data.qvel)))
+        state = jax.jit(e.step)(state.replace(data=data), jp.zeros(e.action_size))
+        assert float(state.data.qvel[0]) == pytest.approx(ax * e.dt, abs=1e-3)  # falling down the slope
     with pytest.raises(vnl.VnlError, match="incline"):
         vnl.make("ant_run", incline=50.0)
     mjx_tilted = vnl.make("ant_run", impl="jax", incline=20.0)  # MJX's model is put after the tilt
