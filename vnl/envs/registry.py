@@ -48,10 +48,9 @@ def _c_on_cpu(cpu: dict[str, Any] | None = None, **others: dict[str, Any]) -> di
 # with the learning rate also decaying linearly to 0 over the run (`_RODENT_RUN_PRESETS`) seeds 0
 # and 1 end the 5M steps running at 1.79 and 1.76 m/s, upright 97-99% (README, Does every task learn?).
 # rodent_escape_bowl: 15-18x the untrained reward in 3.5M (discount 0.99, below), no escape: the
-# bumps' slopes pass what the rat's gait climbs (it falls at 15°); rodent_run_gaps no
-# better than untrained in 4M with dm_control's task; with the episode ending beyond 45° of tilt
-# (env_config.healthy_min_upright) and warm-started from a running rat, 1.1-1.4 m along the
-# corridor (untrained 0.04 m), the parent's own distance, and no gaps (README, Does every task learn?).
+# bumps' slopes pass what the rat's gait climbs (it falls at 15°); rodent_run_gaps: this shared
+# preset with dm_control's task was no better than untrained in 4M steps (it wriggled on its side);
+# its own preset (`_RODENT_GAPS_PRESETS`, below) runs into the first or second gap.
 _RODENT_PRESETS = _c_on_cpu(
     {
         "ppo": {
@@ -85,6 +84,44 @@ _RODENT_RUN_PRESETS = config_lib.merge(_RODENT_PRESETS, {"cpu": {"ppo": {"learni
 # none within 0.5M steps, 0.99 to all of them by 0.9M.
 _BOWL_DISCOUNT = {"ppo": {"discounting": 0.99}}
 _RODENT_BOWL_PRESETS = config_lib.merge(_RODENT_PRESETS, {"cpu": _BOWL_DISCOUNT, "gpu": _BOWL_DISCOUNT})
+
+# rodent_run_gaps on a CPU: the rat learns to run in the corridor without gaps first, as rodent_run
+# (a compass, `observe_heading`; the episode ending beyond 45 degrees of tilt; a healthy bonus of
+# 0.2 per step, the floor task's 5:1 of speed to bonus; the rate decaying to 0), then meets short
+# gaps and the run's own, with the bonus off: dm_control's velocity term pays nothing at rest, so
+# without the bonus standing earns nothing and an episode ended in a gap costs the speed it would
+# have earned after. With the bonus on the gaps (0.2 x 1,500 steps = 300 for standing still, a
+# runner that falls into the second gap earns ~80) the rat learned to stand before them (README,
+# Does every task learn?). A 12-point ground scan (0.1 m behind to 0.45 m ahead) tells it where
+# the gaps are; `observe_corridor` where the corridor's sides are: with the heading alone, the rat
+# running on the gapless corridor drifted sideways and fell off the edge 1 m out after 2.8-5.4 m
+# (6 of 8 rollouts at 3.1M steps). The stages' steps sum to the run's length.
+_RODENT_GAPS_SCAN = tuple(round(-0.1 + 0.05 * i, 2) for i in range(12))
+_RODENT_GAPS_PRESETS = config_lib.merge(
+    _RODENT_PRESETS,
+    {
+        preset: {
+            "env_config": {
+                "observe_heading": True,
+                "observe_corridor": True,
+                "healthy_min_upright": 0.7071,
+                "healthy_reward": 0.0,
+                "ground_scan": list(_RODENT_GAPS_SCAN),
+            },
+            "ppo": {"num_evals": 17, "learning_rate_final": 0.0},
+            "curriculum": [
+                {
+                    "name": "no_gaps",
+                    "steps": 3_000_000,
+                    "env_config": {"healthy_reward": 0.2, "corridor": {"gap_length": [0.0, 0.0]}},
+                },
+                {"name": "short_gaps", "steps": 2_000_000, "env_config": {"corridor": {"gap_length": [0.03, 0.1]}}},
+                {"name": "gaps", "steps": 3_000_000},
+            ],
+        }
+        for preset in ("cpu", "gpu")
+    },
+)
 
 # The ant and the humanoid on a CPU: MuJoCo C physics (ant_run trains 1.7x faster than on MJX
 # there; env steps 2.1x (humanoid) to 13x (ant in the bowl) MJX's: README, Physics on a CPU); the
@@ -220,7 +257,7 @@ _REGISTRY: dict[str, Entry] = {
         run_gaps.RunGaps,
         run_gaps.RODENT_RUN_GAPS,
         "The rat runs at 1 m/s through a corridor of platforms and gaps redrawn every episode.",
-        _RODENT_PRESETS,
+        _RODENT_GAPS_PRESETS,
     ),
     "rodent_escape_bowl": Entry(
         escape_bowl.EscapeBowl,
@@ -257,7 +294,7 @@ _REGISTRY: dict[str, Entry] = {
         run_gaps.RunGaps,
         run_gaps.RODENT_RUN_GAPS,
         "Gaps corridor task for any walker (walker_xml=...).",
-        _RODENT_PRESETS,
+        _RODENT_GAPS_PRESETS,
     ),
     "escape_bowl": Entry(
         escape_bowl.EscapeBowl,
