@@ -312,6 +312,22 @@ def test_an_env_preset_may_be_a_curriculum_whose_last_stage_is_the_users_task():
     assert train_config.build("ant_run_gaps", "cpu", assignments=["curriculum=[]"]).curriculum == ()
 
 
+def test_rodent_gaps_presets_run_gapless_with_a_bonus_then_gaps_without_it():
+    """rodent_run_gaps' presets: the stages' gaps and bonus, the corridor seen, the user's last stage."""
+    for preset, steps in (("cpu", 8_000_000), ("gpu", 32_000_000)):
+        config = train_config.build("rodent_run_gaps", preset)
+        config.validate()
+        assert config.ppo.num_timesteps == steps and config.ppo.learning_rate_final == 0.0
+        envs = [config.stage(i).resolved_env_config() for i in range(len(config.curriculum))]
+        assert [e.corridor.gap_length for e in envs] == [(0.0, 0.0), (0.03, 0.1), (0.05, 0.2)]
+        assert [e.healthy_reward for e in envs] == [0.2, 0.0, 0.0]
+        for e in envs:
+            assert e.observe_heading and e.observe_corridor and e.healthy_min_upright == 0.7071
+            assert len(e.ground_scan) == 12 and e.impl == ("c" if preset == "cpu" else "jax")
+    wider = train_config.build("rodent_run_gaps", "cpu", assignments=["env_config.corridor.gap_length=[0.1,0.3]"])
+    assert wider.stage(2).resolved_env_config().corridor.gap_length == (0.1, 0.3)
+
+
 def test_ant_gaps_cpu_preset_sees_a_small_depth_image_of_the_floor_only_with_vision():
     """With --vision, ant_run_gaps' cpu preset renders 16x16 depth from the ant's ground camera
     (affordable on a CPU, README: Vision); blind, the same preset has no pixels."""

@@ -34,9 +34,10 @@ def _c_on_cpu(cpu: dict[str, Any] | None = None, **others: dict[str, Any]) -> di
 
 # The rat steps ~10x slower than the ant (43 joints, 10 physics steps of 2 ms per control step).
 # On a CPU it runs on MuJoCo C (impl c: 10x MJX's speed there, README); on a GPU on MJX.
-# cpu (the rat's three envs): the ant's batch (256 envs x 8 minibatches x unroll 10, 4 epochs), a
-# 2x256 policy MLP, entropy 1e-3, gradient clipping and a PPO clip of 0.2, 5M steps: 21-25 minutes
-# at 3,600-4,200 env steps/s on the last machine measured (about 40 at the ~2,100 of earlier ones).
+# cpu (the rat's three envs; each adds its own below): the ant's batch (256 envs x 8 minibatches x
+# unroll 10, 4 epochs), a 2x256 policy MLP, entropy 1e-3, gradient clipping and a PPO clip of 0.2,
+# 5M steps: 21-25 minutes at 3,600-4,200 env steps/s on the last machine measured (about 40 at the
+# ~2,100 of earlier ones; rodent_run_gaps: 8M steps, about 38 minutes).
 # Without the clipping this policy had KL jumps of up to 38,254 between successive policies and
 # collapsed; Brax's 4x32 policy with entropy 1e-2 stayed upright 80% of the time.
 # rodent_run: what made the rat run was a compass. dm_control's proprioception senses tilt but
@@ -85,7 +86,7 @@ _RODENT_RUN_PRESETS = config_lib.merge(_RODENT_PRESETS, {"cpu": {"ppo": {"learni
 _BOWL_DISCOUNT = {"ppo": {"discounting": 0.99}}
 _RODENT_BOWL_PRESETS = config_lib.merge(_RODENT_PRESETS, {"cpu": _BOWL_DISCOUNT, "gpu": _BOWL_DISCOUNT})
 
-# rodent_run_gaps on a CPU: the rat learns to run in the corridor without gaps first, as rodent_run
+# rodent_run_gaps: the rat learns to run in the corridor without gaps first, as rodent_run
 # (a compass, `observe_heading`; the episode ending beyond 45 degrees of tilt; a healthy bonus of
 # 0.2 per step, the floor task's 5:1 of speed to bonus; the rate decaying to 0), then meets short
 # gaps and the run's own, with the bonus off: dm_control's velocity term pays nothing at rest, so
@@ -95,33 +96,38 @@ _RODENT_BOWL_PRESETS = config_lib.merge(_RODENT_PRESETS, {"cpu": _BOWL_DISCOUNT,
 # Does every task learn?). A 12-point ground scan (0.1 m behind to 0.45 m ahead) tells it where
 # the gaps are; `observe_corridor` where the corridor's sides are: with the heading alone, the rat
 # running on the gapless corridor drifted sideways and fell off the edge 1 m out after 2.8-5.4 m
-# (6 of 8 rollouts at 3.1M steps). The stages' steps sum to the run's length.
+# (6 of 8 rollouts at 3.1M steps). (Both add the world x-axis in the torso frame; the heading is
+# kept so that a rodent_run checkpoint's observation stays a prefix of this one, for warm starts.)
+# The stages' steps sum to the run's length: 8M on a CPU (about 38 minutes here: 0.25 and 1.06
+# gaps per episode, seeds 0 and 1; README); on a GPU 4x as many (32M, the order of the gpu
+# preset's 30M), not measured.
 _RODENT_GAPS_SCAN = tuple(round(-0.1 + 0.05 * i, 2) for i in range(12))
-_RODENT_GAPS_PRESETS = config_lib.merge(
-    _RODENT_PRESETS,
-    {
-        preset: {
-            "env_config": {
-                "observe_heading": True,
-                "observe_corridor": True,
-                "healthy_min_upright": 0.7071,
-                "healthy_reward": 0.0,
-                "ground_scan": list(_RODENT_GAPS_SCAN),
+
+
+def _rodent_gaps_preset(scale: int) -> dict[str, Any]:
+    """The corridor's settings with stages of 3M, 2M and 3M steps times `scale`."""
+    return {
+        "env_config": {
+            "observe_heading": True,
+            "observe_corridor": True,
+            "healthy_min_upright": 0.7071,
+            "healthy_reward": 0.0,
+            "ground_scan": list(_RODENT_GAPS_SCAN),
+        },
+        "ppo": {"num_evals": 17, "learning_rate_final": 0.0},
+        "curriculum": [
+            {
+                "name": "no_gaps",
+                "steps": 3_000_000 * scale,
+                "env_config": {"healthy_reward": 0.2, "corridor": {"gap_length": [0.0, 0.0]}},
             },
-            "ppo": {"num_evals": 17, "learning_rate_final": 0.0},
-            "curriculum": [
-                {
-                    "name": "no_gaps",
-                    "steps": 3_000_000,
-                    "env_config": {"healthy_reward": 0.2, "corridor": {"gap_length": [0.0, 0.0]}},
-                },
-                {"name": "short_gaps", "steps": 2_000_000, "env_config": {"corridor": {"gap_length": [0.03, 0.1]}}},
-                {"name": "gaps", "steps": 3_000_000},
-            ],
-        }
-        for preset in ("cpu", "gpu")
-    },
-)
+            {"name": "short_gaps", "steps": 2_000_000 * scale, "env_config": {"corridor": {"gap_length": [0.03, 0.1]}}},
+            {"name": "gaps", "steps": 3_000_000 * scale},
+        ],
+    }
+
+
+_RODENT_GAPS_PRESETS = config_lib.merge(_RODENT_PRESETS, {"cpu": _rodent_gaps_preset(1), "gpu": _rodent_gaps_preset(4)})
 
 # The ant and the humanoid on a CPU: MuJoCo C physics (ant_run trains 1.7x faster than on MJX
 # there; env steps 2.1x (humanoid) to 13x (ant in the bowl) MJX's: README, Physics on a CPU); the
