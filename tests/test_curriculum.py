@@ -318,6 +318,8 @@ def test_rodent_gaps_presets_run_gapless_with_a_bonus_then_gaps_without_it():
         config = train_config.build("rodent_run_gaps", preset)
         config.validate()
         assert config.ppo.num_timesteps == steps and config.ppo.learning_rate_final == 0.0
+        assert [stage.name for stage in config.curriculum] == ["no_gaps", "short_gaps", "gaps"]
+        assert not config.curriculum[-1].env_config  # the last stage is the task as configured
         envs = [config.stage(i).resolved_env_config() for i in range(len(config.curriculum))]
         assert [e.corridor.gap_length for e in envs] == [(0.0, 0.0), (0.03, 0.1), (0.05, 0.2)]
         assert [e.healthy_reward for e in envs] == [0.2, 0.0, 0.0]
