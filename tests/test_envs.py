@@ -8,6 +8,7 @@ import jax.numpy as jp
 import mujoco
 import numpy as np
 import pytest
+from dm_control import mjcf
 from mujoco import mjx
 
 import vnl
@@ -673,6 +674,41 @@ def test_ground_scan_reads_platforms_and_gaps_ahead_from_the_episodes_layout():
         assert all(g == e for g, e, c in zip(got, expected, close, strict=True) if not c)
     with pytest.raises(VnlError, match="ground_scan"):
         vnl.make("ant_run_gaps", ground_scan=(float("nan"),))
+
+
+def test_terrain_scan_reads_the_bowls_height_under_points_around_the_walker():
+    """`terrain_scan`: the root's height above the ground at (forward, left) points in its heading
+    frame, checked against MuJoCo's own ray cast down onto the arena alone (`mj_ray`) with the walker
+    placed at five positions and headings: the bowl's floor, its slopes, its rim and off the
+    heightfield (the ground plane). Bilinear against MuJoCo's triangles: within 1 cm, median 1 mm."""
+    scan = tuple((float(a), float(b)) for a in (-0.2, 0.0, 0.2, 0.4) for b in (-0.2, 0.0, 0.2))
+    env = vnl.make("ant_escape_bowl", impl="c", terrain_scan=scan, bowl={"nrow": 201})
+    assert env.observation_layout()[-1] == ("terrain", len(scan))
+    params = env._config.bowl
+    model = mjcf.Physics.from_mjcf_model(bowl.build(params)).model.ptr
+    bowl.write_terrain(model, params)
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+
+    def ground(x: float, y: float) -> float:
+        hit = mujoco.mj_ray(
+            model, data, np.array([x, y, 3.0]), np.array([0.0, 0.0, -1.0]), None, 1, -1, np.zeros(1, np.int32)
+        )
+        return 3.0 - hit
+
+    state = jax.jit(env.reset)(jax.random.PRNGKey(0))
+    errors = []
+    for x, y, yaw in ((0.0, 0.0, 0.0), (2.5, -1.0, 0.7), (-3.3, 2.1, 2.5), (5.9, 0.3, -1.2), (7.0, 7.0, 0.0)):
+        pose = jp.array([x, y, 1.0, np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
+        placed = env.forward(state.data.replace(qpos=state.data.qpos.at[:7].set(pose)))
+        got = np.asarray(env._obs(placed)[-len(scan) :])
+        root = np.asarray(placed.xpos[env._root])
+        forward, left = np.array([np.cos(yaw), np.sin(yaw)]), np.array([-np.sin(yaw), np.cos(yaw)])
+        expected = [root[2] - ground(*(root[:2] + a * forward + b * left)) for a, b in scan]
+        errors += list(np.abs(got - expected))
+    assert max(errors) < 0.01 and np.median(errors) < 0.001
+    with pytest.raises(VnlError, match="terrain_scan"):
+        vnl.make("ant_escape_bowl", terrain_scan=((0.1, float("nan")),))
 
 
 @pytest.mark.xdist_group("ant_run-c")

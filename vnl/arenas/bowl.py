@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import dataclasses
 
+import jax
+import jax.numpy as jp
 import mujoco
 import numpy as np
 from dm_control import mjcf
@@ -96,6 +98,35 @@ def slope_profile(params: BowlParams, ring: float = 0.5) -> list[RingSlope]:
     return rings
 
 
+# The heightfield geom sits this far below the ground plane (z = 0), so that where the terrain is
+# flat (its rim and beyond) the plane, not the heightfield's edge, is what a foot touches.
+HFIELD_Z = -0.01
+
+
+def surface(params: BowlParams) -> np.ndarray:
+    """The heightfield's top in world z (m) at its points, shape (nrow, nrow): row i at
+    y = -half_size + 2·half_size·i/(nrow-1), column j at the same x (MuJoCo's layout)."""
+    return HFIELD_Z + params.height * terrain(params)
+
+
+def ground_height(heights: jax.Array, half_size: float, xy: jax.Array) -> jax.Array:
+    """The ground's height (m) under world points `xy`, shape (..., 2) -> (...): the heightfield's
+    top `heights` (from `surface`, (nrow, nrow)) interpolated bilinearly between its points
+    (MuJoCo's two triangles per cell differ by at most a quarter of the cell's twist), or the
+    ground plane (0) where that is higher or the point is off the heightfield."""
+    n = heights.shape[0]
+    grid = (xy + half_size) * ((n - 1) / (2 * half_size))  # (col, row) in point units
+    inside = jp.all((grid >= 0) & (grid <= n - 1), axis=-1)
+    grid = jp.clip(grid, 0.0, n - 1 - 1e-4)
+    cell = jp.floor(grid).astype(jp.int32)
+    fc, fr = (grid - cell)[..., 0], (grid - cell)[..., 1]
+    c, r = cell[..., 0], cell[..., 1]
+    z = (1 - fr) * ((1 - fc) * heights[r, c] + fc * heights[r, c + 1]) + fr * (
+        (1 - fc) * heights[r + 1, c] + fc * heights[r + 1, c + 1]
+    )
+    return jp.where(inside, jp.maximum(z, 0.0), 0.0)
+
+
 def build(params: BowlParams) -> mjcf.RootElement:
     """The bowl's MJCF; call `write_terrain` on the compiled model to fill the heightfield."""
     root = arena_base.new_arena("bowl", "ground", (0.2, 0.3, 0.4), (0.25, 0.35, 0.45), (40, 40), texuniform=False)
@@ -108,7 +139,7 @@ def build(params: BowlParams) -> mjcf.RootElement:
         name="terrain",
         type="hfield",
         hfield="terrain",
-        pos=[0, 0, -0.01],
+        pos=[0, 0, HFIELD_Z],
         rgba=[0.2, 0.3, 0.4, 1],
         material="ground",
     )

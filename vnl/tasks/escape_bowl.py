@@ -10,7 +10,8 @@ Reward = upright × escape (dm_control `rewards.tolerance`, linear sigmoid, valu
 
 The product is `metrics["reward/escape"]`; its two factors are logged as `escape` and `upright`.
 No termination but physics blow-ups; 20 s episodes. Observation: proprioception + `origin`,
-the bowl centre in the root body's frame.
+the bowl centre in the root body's frame (+ `terrain` with `terrain_scan`: how far below the root
+the ground is at points around it, a height scan).
 
 Task measures (`metrics["measure/..."]`, summed over an episode): `escaped`, 1 if the head (the
 root for other walkers) got at least R from the centre (out of the bowl: the escape factor is
@@ -45,6 +46,11 @@ class EscapeBowlConfig(WalkerTaskConfig):
     reset_noise_scale: float = 0.01
     deviation_angle: float = 30.0  # degrees: upright = 1 within this tilt
     bowl: bowl_arena.BowlParams = bowl_arena.BowlParams()
+    # Add `terrain` to the observation: for each point (forward, left) (m) in the root's heading
+    # frame (its x-axis turned level), the root's height above the ground there: a height scan, the
+    # rough-terrain sensor of legged-locomotion RL, for a walker without a camera among bumps as tall
+    # as itself. Empty: none.
+    terrain_scan: tuple[tuple[float, float], ...] = ()
 
     def validate(self) -> None:
         super().validate()
@@ -61,6 +67,8 @@ class EscapeBowlConfig(WalkerTaskConfig):
             raise VnlError(f"bowl.smoothness must be in [0, 1], got {b.smoothness}")
         if not 0 <= self.deviation_angle < 180:
             raise VnlError(f"deviation_angle must be in [0, 180) degrees, got {self.deviation_angle}")
+        if not np.all(np.isfinite(np.asarray(self.terrain_scan, dtype=float))):
+            raise VnlError(f"terrain_scan must be (forward, left) points in metres, got {list(self.terrain_scan)}")
 
 
 RODENT_ESCAPE_BOWL = EscapeBowlConfig()
@@ -96,6 +104,8 @@ class EscapeBowl(WalkerTask):
         self._spawn_z = spawn_height(model, 0.0, 0.0)
         site = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, "walker/head")
         self._head_site = site if site >= 0 and walker.name == "rodent" else None
+        self._surface = jp.asarray(bowl_arena.surface(config.bowl), jp.float32)
+        self._scan = np.asarray(config.terrain_scan, dtype=np.float32).reshape(-1, 2)
         self._upright_bodies = np.asarray(
             [self._root] + ([body_id(model, "pelvis")] if walker.name == "rodent" else []), dtype=int
         )
@@ -157,10 +167,22 @@ class EscapeBowl(WalkerTask):
             return data.site_xpos[self._head_site]
         return data.xpos[self._root]
 
+    def terrain_below(self, data: mjx.Data) -> jax.Array:
+        """The root's height (m) above the ground at the `terrain_scan` points, shape (n_points,)."""
+        root = data.xpos[self._root]
+        forward = data.xmat[self._root, :2, 0]
+        forward = forward / jp.maximum(jp.linalg.norm(forward), 1e-6)
+        left = jp.stack([-forward[1], forward[0]])
+        points = root[:2] + self._scan[:, :1] * forward + self._scan[:, 1:] * left
+        return root[2] - bowl_arena.ground_height(self._surface, self._config.bowl.half_size, points)
+
     def _obs(self, data: mjx.Data) -> jax.Array:
         origin = -data.xpos[self._root] @ data.xmat[self._root]
-        parts = [self.proprioception(data), *self.heading(data), origin.astype(jp.float32), *self.clock(data)]
-        return jp.concatenate(parts).astype(jp.float32)
+        parts = [self.proprioception(data), *self.heading(data), origin.astype(jp.float32)]
+        if len(self._scan):
+            parts.append(self.terrain_below(data))
+        return jp.concatenate(parts + self.clock(data)).astype(jp.float32)
 
     def observation_layout(self) -> list[tuple[str, int]]:
-        return self.proprioception_layout() + self.heading_layout() + [("origin", 3)] + self.clock_layout()
+        scan = [("terrain", len(self._scan))] if len(self._scan) else []
+        return self.proprioception_layout() + self.heading_layout() + [("origin", 3)] + scan + self.clock_layout()
