@@ -111,9 +111,11 @@ def surface(params: BowlParams) -> np.ndarray:
 
 def ground_height(heights: jax.Array, half_size: float, xy: jax.Array) -> jax.Array:
     """The ground's height (m) under world points `xy`, shape (..., 2) -> (...): the heightfield's
-    top `heights` (from `surface`, (nrow, nrow)) interpolated bilinearly between its points
-    (MuJoCo's two triangles per cell differ by at most a quarter of the cell's twist), or the
-    ground plane (0) where that is higher or the point is off the heightfield."""
+    top `heights` (from `surface`, (nrow, nrow)) interpolated bilinearly between its points, or the
+    ground plane (0) where that is higher or the point is off the heightfield. MuJoCo's two
+    triangles per cell differ from bilinear by up to a quarter of the cell's twist: measured against
+    `mj_ray` on dm_control's bowl, within 7 mm on 201 points (6-cm cells, the rat's), up to 4 cm
+    on 61 (20-cm cells, the ant's)."""
     n = heights.shape[0]
     grid = (xy + half_size) * ((n - 1) / (2 * half_size))  # (col, row) in point units
     inside = jp.all((grid >= 0) & (grid <= n - 1), axis=-1)

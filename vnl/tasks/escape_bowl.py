@@ -168,7 +168,9 @@ class EscapeBowl(WalkerTask):
         return data.xpos[self._root]
 
     def terrain_below(self, data: mjx.Data) -> jax.Array:
-        """The root's height (m) above the ground at the `terrain_scan` points, shape (n_points,)."""
+        """The root's height (m) above the ground at the `terrain_scan` points, shape (n_points,).
+        The heading frame is the root's x-axis turned level; with that axis vertical (the walker on
+        its nose or tail) every point falls under the root."""
         root = data.xpos[self._root]
         forward = data.xmat[self._root, :2, 0]
         forward = forward / jp.maximum(jp.linalg.norm(forward), 1e-6)
