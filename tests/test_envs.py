@@ -678,9 +678,9 @@ def test_ground_scan_reads_platforms_and_gaps_ahead_from_the_episodes_layout():
 
 def test_terrain_scan_reads_the_bowls_height_under_points_around_the_walker():
     """`terrain_scan`: the root's height above the ground at (forward, left) points in its heading
-        frame, checked against MuJoCo's own ray cast down onto the arena alone (`mj_ray`) with the walker
-        placed at five positions and headings: the bowl's floor, its slopes, its rim and off the
-        heightfield (the ground plane). Bilinear against MuJoCo's triangles on the rat's 201-point grid
+    frame, checked against MuJoCo's own ray cast down onto the arena alone (`mj_ray`) with the walker
+    placed at five positions and headings: the bowl's floor, its slopes, its rim and off the
+    heightfield (the ground plane). Bilinear against MuJoCo's triangles on the rat's 201-point grid
     (6-cm cells): within 1 cm, median 1 mm; where the ground plane is the ground, within 2 mm."""
     scan = tuple((float(a), float(b)) for a in (-0.2, 0.0, 0.2, 0.4) for b in (-0.2, 0.0, 0.2))
     env = vnl.make("ant_escape_bowl", impl="c", terrain_scan=scan, bowl={"nrow": 201})
@@ -706,8 +706,9 @@ def test_terrain_scan_reads_the_bowls_height_under_points_around_the_walker():
         root = np.asarray(placed.xpos[env._root])
         forward, left = np.array([np.cos(yaw), np.sin(yaw)]), np.array([-np.sin(yaw), np.cos(yaw)])
         expected = [root[2] - ground(*(root[:2] + a * forward + b * left)) for a, b in scan]
-        errors += list(np.abs(got - expected))
-        rim += list(np.abs(got - expected)) if x > 5.5 else []
+        error = list(np.abs(got - expected))
+        errors += error
+        rim += error if x > 5.5 else []
     assert max(errors) < 0.01 and np.median(errors) < 0.001
     assert max(rim) < 0.002  # at and past the rim the ground plane, 1 cm above the heightfield's base
     with pytest.raises(VnlError, match="terrain_scan"):
