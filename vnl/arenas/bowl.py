@@ -25,6 +25,7 @@ from scipy import ndimage
 
 from vnl.arenas import base as arena_base
 from vnl.errors import VnlError
+from vnl.heightfield import Grid
 
 
 @dataclasses.dataclass(frozen=True)
@@ -109,23 +110,17 @@ def surface(params: BowlParams) -> np.ndarray:
     return HFIELD_Z + params.height * terrain(params)
 
 
-def ground_height(heights: jax.Array, half_size: float, xy: jax.Array) -> jax.Array:
+def ground_height(heights: Grid, half_size: float, xy: jax.Array) -> jax.Array:
     """The ground's height (m) under world points `xy`, shape (..., 2) -> (...): the heightfield's
-    top `heights` (from `surface`, (nrow, nrow)) interpolated bilinearly between its points, or the
-    ground plane (0) where that is higher or the point is off the heightfield. MuJoCo's two
-    triangles per cell differ from bilinear by up to a quarter of the cell's twist: measured against
-    `mj_ray` on dm_control's bowl, within 7 mm on 201 points (6-cm cells, the rat's), up to 4 cm
-    on 61 (20-cm cells, the ant's)."""
-    n = heights.shape[0]
+    top `heights` (`Grid(surface(params))`, (nrow, nrow)) interpolated bilinearly between its
+    points, or the ground plane (0) where that is higher or the point is off the heightfield.
+    MuJoCo's two triangles per cell differ from bilinear by up to a quarter of the cell's twist:
+    measured against `mj_ray` on dm_control's bowl, within 7 mm on 201 points (6-cm cells, the
+    rat's), up to 4 cm on 61 (20-cm cells, the ant's)."""
+    n = heights.data.shape[0]
     grid = (xy + half_size) * ((n - 1) / (2 * half_size))  # (col, row) in point units
     inside = jp.all((grid >= 0) & (grid <= n - 1), axis=-1)
-    grid = jp.clip(grid, 0.0, n - 1 - 1e-4)
-    cell = jp.floor(grid).astype(jp.int32)
-    fc, fr = (grid - cell)[..., 0], (grid - cell)[..., 1]
-    c, r = cell[..., 0], cell[..., 1]
-    z = (1 - fr) * ((1 - fc) * heights[r, c] + fc * heights[r, c + 1]) + fr * (
-        (1 - fc) * heights[r + 1, c] + fc * heights[r + 1, c + 1]
-    )
+    z = heights.interpolate(grid[..., 0], grid[..., 1])[0]
     return jp.where(inside, jp.maximum(z, 0.0), 0.0)
 
 

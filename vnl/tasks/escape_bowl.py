@@ -33,6 +33,7 @@ from vnl import rewards
 from vnl.arenas import bowl as bowl_arena
 from vnl.env import State
 from vnl.errors import VnlError
+from vnl.heightfield import Grid
 from vnl.tasks.base import WalkerTask, WalkerTaskConfig, body_id, build_walker, compile_world, spawn_height
 
 
@@ -104,7 +105,7 @@ class EscapeBowl(WalkerTask):
         self._spawn_z = spawn_height(model, 0.0, 0.0)
         site = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, "walker/head")
         self._head_site = site if site >= 0 and walker.name == "rodent" else None
-        self._surface = jp.asarray(bowl_arena.surface(config.bowl), jp.float32)
+        self._surface = Grid(bowl_arena.surface(config.bowl).astype(np.float32))
         self._scan = np.asarray(config.terrain_scan, dtype=np.float32).reshape(-1, 2)
         self._upright_bodies = np.asarray(
             [self._root] + ([body_id(model, "pelvis")] if walker.name == "rodent" else []), dtype=int

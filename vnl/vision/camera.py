@@ -26,7 +26,6 @@ field of view, row 0 of an image is its top, and depth is the distance along the
 from __future__ import annotations
 
 import dataclasses
-import functools
 
 import jax
 import jax.numpy as jp
@@ -35,6 +34,7 @@ import numpy as np
 from mujoco import mjx
 
 from vnl.errors import VnlError
+from vnl.heightfield import Grid
 
 G = mujoco.mjtGeom
 PRIMITIVES = (G.mjGEOM_PLANE, G.mjGEOM_SPHERE, G.mjGEOM_CAPSULE, G.mjGEOM_ELLIPSOID, G.mjGEOM_CYLINDER, G.mjGEOM_BOX)
@@ -66,14 +66,7 @@ class _Heightfield:
 
     geom: int
     size: tuple[float, float, float, float]  # x and y half-extents, elevation, base depth (m)
-    data: np.ndarray  # (nrow, ncol) elevations in [0, 1]; row 0 at y = -size[1], column 0 at x = -size[0]
-
-    @functools.cached_property
-    def corners(self) -> np.ndarray:
-        """((nrow - 1) * (ncol - 1), 4) elevations at each cell's corners (00, 01, 10, 11): a
-        cell's four are one gather."""
-        d = self.data
-        return np.stack([d[:-1, :-1], d[:-1, 1:], d[1:, :-1], d[1:, 1:]], -1).reshape(-1, 4)
+    grid: Grid  # (nrow, ncol) elevations in [0, 1]; row 0 at y = -size[1], column 0 at x = -size[0]
 
 
 class Camera:
@@ -127,7 +120,7 @@ class Camera:
             h = m.geom_dataid[g]
             nrow, ncol, adr = m.hfield_nrow[h], m.hfield_ncol[h], m.hfield_adr[h]
             data = m.hfield_data[adr : adr + nrow * ncol].reshape(nrow, ncol).astype(np.float32)
-            self._hfields.append(_Heightfield(int(g), tuple(float(x) for x in m.hfield_size[h]), data))
+            self._hfields.append(_Heightfield(int(g), tuple(float(x) for x in m.hfield_size[h]), Grid(data)))
         # All of them in one list (primitives type by type, then heightfields): the slot of a
         # pixel's nearest geom indexes it.
         ids = [g.ids for g in self._geoms.values()] + [np.array([h.geom for h in self._hfields], int)]
@@ -313,19 +306,10 @@ def _box(size: Cols, pnt: Cols, vec: Cols, w: jax.Array) -> jax.Array:
 def _heights(hf: _Heightfield, x: jax.Array, y: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
     """Bilinear elevation (m) of the heightfield at local (x, y), and its x and y slopes."""
     rx, ry, elev, _ = hf.size
-    nrow, ncol = hf.data.shape
-    u = (x / rx + 1) * (0.5 * (ncol - 1))
-    v = (y / ry + 1) * (0.5 * (nrow - 1))
-    c = jp.clip(jp.floor(u), 0, ncol - 2)
-    r = jp.clip(jp.floor(v), 0, nrow - 2)
-    fu, fv = jp.clip(u - c, 0, 1), jp.clip(v - r, 0, 1)
-    corners = jp.asarray(hf.corners)[r.astype(jp.int32) * (ncol - 1) + c.astype(jp.int32)]  # one gather
-    h00, h01, h10, h11 = corners[..., 0], corners[..., 1], corners[..., 2], corners[..., 3]
-    bottom, top = h00 + (h01 - h00) * fu, h10 + (h11 - h10) * fu
-    height = elev * (bottom + (top - bottom) * fv)
-    dx = elev * ((h01 - h00) * (1 - fv) + (h11 - h10) * fv) * (0.5 * (ncol - 1) / rx)
-    dy = elev * (top - bottom) * (0.5 * (nrow - 1) / ry)
-    return height, dx, dy
+    nrow, ncol = hf.grid.data.shape
+    col_per_m, row_per_m = 0.5 * (ncol - 1) / rx, 0.5 * (nrow - 1) / ry
+    value, d_col, d_row = hf.grid.interpolate((x + rx) * col_per_m, (y + ry) * row_per_m)
+    return elev * value, elev * d_col * col_per_m, elev * d_row * row_per_m
 
 
 def _heightfield(hf: _Heightfield, pnt: jax.Array, vec: jax.Array) -> jax.Array:
