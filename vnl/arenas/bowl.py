@@ -104,15 +104,9 @@ def slope_profile(params: BowlParams, ring: float = 0.5) -> list[RingSlope]:
 HFIELD_Z = -0.01
 
 
-def surface(params: BowlParams) -> np.ndarray:
-    """The heightfield's top in world z (m) at its points, shape (nrow, nrow): row i at
-    y = -half_size + 2·half_size·i/(nrow-1), column j at the same x (MuJoCo's layout)."""
-    return HFIELD_Z + params.height * terrain(params)
-
-
 def ground_height(heights: Grid, half_size: float, xy: jax.Array) -> jax.Array:
     """The ground's height (m) under world points `xy`, shape (..., 2) -> (...): the heightfield's
-    top `heights` (`Grid(surface(params))`, (nrow, nrow)) interpolated bilinearly between its
+    top `heights` (`Grid(write_terrain(...))`, (nrow, nrow)) interpolated bilinearly between its
     points, or the ground plane (0) where that is higher or the point is off the heightfield.
     MuJoCo's two triangles per cell differ from bilinear by up to a quarter of the cell's twist:
     measured against `mj_ray` on dm_control's bowl, within 7 mm on 201 points (6-cm cells, the
@@ -152,8 +146,12 @@ def build(params: BowlParams) -> mjcf.RootElement:
     return root
 
 
-def write_terrain(model: mujoco.MjModel, params: BowlParams) -> None:
-    """Fills the compiled model's heightfield (as dm_control does after compiling)."""
+def write_terrain(model: mujoco.MjModel, params: BowlParams) -> np.ndarray:
+    """Fills the compiled model's heightfield (as dm_control does after compiling) and returns its
+    top in world z (m), shape (nrow, nrow): row i at y = -half_size + 2·half_size·i/(nrow-1),
+    column j at the same x (MuJoCo's layout)."""
+    elevations = terrain(params)
     i = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_HFIELD, "terrain")
     adr, n = model.hfield_adr[i], model.hfield_nrow[i] * model.hfield_ncol[i]
-    model.hfield_data[adr : adr + n] = terrain(params).ravel()
+    model.hfield_data[adr : adr + n] = elevations.ravel()
+    return HFIELD_Z + params.height * elevations

@@ -100,12 +100,12 @@ class EscapeBowl(WalkerTask):
     def __init__(self, config: EscapeBowlConfig) -> None:
         walker = build_walker(config)
         model, report = compile_world(walker, bowl_arena.build(config.bowl))
-        bowl_arena.write_terrain(model, config.bowl)
+        surface = bowl_arena.write_terrain(model, config.bowl)
         super().__init__(config, walker, model, report)
         self._spawn_z = spawn_height(model, 0.0, 0.0)
         site = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, "walker/head")
         self._head_site = site if site >= 0 and walker.name == "rodent" else None
-        self._surface = Grid(bowl_arena.surface(config.bowl).astype(np.float32))
+        self._surface = Grid(surface.astype(np.float32))
         self._scan = np.asarray(config.terrain_scan, dtype=np.float32).reshape(-1, 2)
         self._upright_bodies = np.asarray(
             [self._root] + ([body_id(model, "pelvis")] if walker.name == "rodent" else []), dtype=int
