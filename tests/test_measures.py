@@ -86,11 +86,12 @@ def test_summary_and_records_derive_fractions_and_escape_times():
         mocap_pos=np.zeros((e, t + 1, 0, 3)),
         reward=np.zeros((e, t)),
         done=np.zeros((e, t)),
-        active=np.ones((e, t)),
+        active=np.array([[1, 1, 1, 1], [1, 1, 0, 0], [1, 1, 1, 1]], float),  # episode 1 ends at step 2
         metrics=metrics,
         metrics0={},
     )
     s = summarize(r, dt=0.5)
+    assert s["ended_early"]["mean"] == pytest.approx(1 / 3)
     assert s["upright_fraction"]["mean"] == pytest.approx((1.0 + 0.5 + 0.0) / 3)
     assert s["escaped"]["mean"] == pytest.approx(2 / 3)
     assert s["time_to_escape"]["mean"] == pytest.approx(0.75)  # (1.0 + 0.5) / 2, the escapers only

@@ -265,6 +265,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
     for k, v in summary.items():
         if isinstance(v, dict):
             print(f"{k:<28} {v['mean']:>12.3f} {v['std']:>12.3f}")
+    ended = round(summary["ended_early"]["mean"] * args.episodes)
+    print(f"{ended} of {args.episodes} episodes ended before step {steps} (ended_early)")
     print(f"written to {out}")
     return 0
 

@@ -86,13 +86,15 @@ def summarize(r: Rollout, dt: float) -> dict[str, Any]:
     `<name>`) run over each episode's active steps; forward distance is the root's x displacement
     from reset to the episode's last active step; mean forward velocity is that distance over the
     episode's duration; `upright_fraction` is the time upright over the rollout's full length;
-    `time_to_escape` is the time in the bowl over the episodes that left it (NaN if none did).
+    `ended_early` is the fraction of episodes that ended (a fall, an escape: the task's end)
+    before the rollout's last step, so 0 means every episode ran its full length; `time_to_escape` is the time in the bowl over the episodes that left it (NaN if none did).
     """
     mask = r.active
     lengths = r.lengths
     per_episode: dict[str, np.ndarray] = {
         "episode_reward": (r.reward * mask).sum(1),
         "episode_length": lengths,
+        "ended_early": (lengths < r.reward.shape[1]).astype(np.float64),
     }
     for k, v in r.metrics.items():
         if k.startswith("reward/"):
