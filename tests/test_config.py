@@ -6,6 +6,7 @@ import pytest
 
 import vnl
 from vnl import config as config_lib
+from vnl.envs import registry
 from vnl.errors import VnlError
 from vnl.train import config as train_config
 
@@ -86,6 +87,22 @@ def test_unknown_env_and_preset_list_valid_names():
         train_config.build("ant_walk", "cpu")
     with pytest.raises(VnlError, match="valid presets are: cpu, gpu, tiny"):
         train_config.build("ant_run", "fast")
+
+
+@pytest.mark.parametrize("env", [n for n in vnl.names() if n not in registry.ALIASES])
+def test_every_env_builds_with_every_preset(env):
+    for preset in train_config.PRESETS:
+        cfg = train_config.build(env, preset)  # validates env_config and the curriculum's stages
+        assert cfg.preset == preset
+
+
+def test_humanoid_gpu_preset_keeps_the_cpu_presets_task_and_clipping_at_the_gpu_scale():
+    cpu, gpu = train_config.build("humanoid_run", "cpu"), train_config.build("humanoid_run", "gpu")
+    for key in ("healthy_reward", "healthy_min_upright", "forward_velocity_cap"):
+        assert gpu.env_config[key] == cpu.env_config[key] != getattr(registry.env_config("humanoid_run"), key)
+    assert gpu.ppo.max_grad_norm == cpu.ppo.max_grad_norm == 1.0
+    assert gpu.ppo.num_envs == train_config.PRESETS["gpu"]["ppo"]["num_envs"] > cpu.ppo.num_envs
+    assert gpu.env_config.get("impl", "mjx") == "mjx" and cpu.env_config["impl"] == "c"
 
 
 def test_precedence_preset_file_set_flags():

@@ -87,7 +87,8 @@ def summarize(r: Rollout, dt: float) -> dict[str, Any]:
     from reset to the episode's last active step; mean forward velocity is that distance over the
     episode's duration; `upright_fraction` is the time upright over the rollout's full length;
     `ended_early` is the fraction of episodes that ended (a fall, an escape: the task's end)
-    before the rollout's last step, so 0 means every episode ran its full length; `time_to_escape` is the time in the bowl over the episodes that left it (NaN if none did).
+    before the rollout's last step, so 0 means every episode ran its full length;
+    `time_to_escape` is the time in the bowl over the episodes that left it (NaN if none did).
     """
     mask = r.active
     lengths = r.lengths
