@@ -53,6 +53,14 @@ def test_a_scripted_walk_through_the_corridor_counts_each_gap_once():
     )
     assert crossed == expected == n_gaps >= 3
     assert distance == pytest.approx(furthest - spawn, abs=0.1)  # (the rat moves a little in each step)
+    # Then off the corridor's side, 1 m down: the episode ends, and says why (`ended_<cause>`, once).
+    assert float(state.done) == 0 and not any(float(v) for k, v in state.metrics.items() if "ended_" in k)
+    qpos = state.data.qpos.at[root + 1].set(env.corridor.corridor_width).at[root + 2].set(-1.0)
+    state = state.replace(data=env.forward(state.data.replace(qpos=qpos, qvel=jp.zeros_like(state.data.qvel))))
+    state = step(state, jp.zeros(env.action_size))
+    ended = {k.removeprefix("measure/ended_"): float(v) for k, v in state.metrics.items() if "ended_" in k}
+    assert float(state.done) == 1 and ended["dropped"] == 1 and sum(ended.values()) == 1, ended
+    assert set(ended) == {"dropped", *(["tilted"] if env.config.healthy_min_upright is not None else [])}
 
 
 @pytest.mark.xdist_group("ant_escape_bowl-c")

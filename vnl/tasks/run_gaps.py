@@ -19,8 +19,10 @@ touches a platform and `contact_termination` is on, or when the physics blows up
 environment, without recompiling.
 
 Task measures (`metrics["measure/..."]`, summed over an episode): `distance`, how far along the
-corridor the root got beyond its spawn point (m), and `gaps_crossed`, the gaps whose far edge it
-passed.
+corridor the root got beyond its spawn point (m), `gaps_crossed`, the gaps whose far edge it
+passed, and `ended_<cause>`, 1 if the episode ended that way (`RunGaps.failure_causes`: `dropped`,
+`root_low`, `foot_in_gap`, `tilted`, `body_contact`, those the config enables; the per-step
+`fell` metric is any of them).
 """
 
 from __future__ import annotations
@@ -208,6 +210,7 @@ class RunGaps(WalkerTask):
             "physics_nan": zero,
             "measure/distance": zero,
             "measure/gaps_crossed": zero,
+            **{f"measure/ended_{k}": zero for k in self.failure_causes(data)},
         }
         info = {"rng": rng, "layout": layout, "max_x": jp.float32(cfg.spawn_x)}
         return State(data, self._obs(data, layout), zero, zero, metrics, info)
@@ -221,7 +224,8 @@ class RunGaps(WalkerTask):
         ok = 1.0 - blew_up
         vx = self.subtree_linvel(data)[0]
         velocity = rewards.tolerance(vx, (cfg.target_velocity, cfg.target_velocity), margin=cfg.target_velocity)
-        fell = self.failed(data)
+        causes = self.failure_causes(data)
+        fell = _any(causes)
         healthy = cfg.healthy_reward * (1.0 - fell) * ok
         reward = velocity * ok + healthy
         done = jp.maximum(fell, blew_up)
@@ -240,31 +244,39 @@ class RunGaps(WalkerTask):
             "physics_nan": blew_up,
             "measure/distance": new_max - max_x,
             "measure/gaps_crossed": crossed,
+            # Why the episode ended (1 at the step it did, per cause; several can hold at once).
+            **{f"measure/ended_{k}": v * (1.0 - blew_up) for k, v in causes.items()},
         }
         info = {**state.info, "max_x": new_max}
         obs = self._obs(data, layout)
         return state.replace(data=data, obs=obs, reward=reward, done=done, metrics=metrics, info=info)
 
     def failed(self, data: mjx.Data) -> jax.Array:
-        """1.0 if the episode fails: fell below `terminate_at_height`, or (each if set) the root
-        below `terminate_root_below`, a foot's lowest point below `terminate_foot_below`, tilted
-        past `healthy_min_upright`, or a non-foot geom touching a platform."""
+        """1.0 if the episode fails (any of `failure_causes`), else 0.0; a scalar."""
+        return _any(self.failure_causes(data))
+
+    def failure_causes(self, data: mjx.Data) -> dict[str, jax.Array]:
+        """Each way the episode can fail, 1.0 where it does, as scalars: `dropped` (an end effector
+        below `terminate_at_height`: into a gap or off the corridor), and each only if set:
+        `root_low` (the root below `terminate_root_below`), `foot_in_gap` (a foot's lowest point
+        below `terminate_foot_below`), `tilted` (past `healthy_min_upright`), `body_contact` (a
+        non-foot geom touching a platform)."""
         cfg: RunGapsConfig = self._config
-        low = jp.any(data.xpos[self._low_bodies, 2] < cfg.terminate_at_height)
+        causes = {"dropped": jp.any(data.xpos[self._low_bodies, 2] < cfg.terminate_at_height)}
         if cfg.terminate_root_below is not None:
-            low = low | (data.xpos[self._root, 2] < cfg.terminate_root_below)
+            causes["root_low"] = data.xpos[self._root, 2] < cfg.terminate_root_below
         if cfg.terminate_foot_below is not None:
-            low = low | (self.feet_lowest(data) < cfg.terminate_foot_below)
+            causes["foot_in_gap"] = self.feet_lowest(data) < cfg.terminate_foot_below
         if cfg.healthy_min_upright is not None:
-            low = low | (self.upright_cosine(data) < cfg.healthy_min_upright)
+            causes["tilted"] = self.upright_cosine(data) < cfg.healthy_min_upright
         if cfg.contact_termination and len(self._nonfoot) and data.contact.geom1.shape[0]:
             c = data.contact
             g1, g2 = c.geom1, c.geom2
             bad = (jp.isin(g1, self._nonfoot) & jp.isin(g2, self._ground)) | (
                 jp.isin(g2, self._nonfoot) & jp.isin(g1, self._ground)
             )
-            low = low | jp.any(bad & (c.dist < 0))
-        return low.astype(jp.float32)
+            causes["body_contact"] = jp.any(bad & (c.dist < 0))
+        return {k: v.astype(jp.float32) for k, v in causes.items()}
 
     def feet_lowest(self, data: mjx.Data) -> jax.Array:
         """The height (m) of the lowest point of the end effectors' colliding geoms, a scalar
@@ -293,3 +305,8 @@ class RunGaps(WalkerTask):
     @property
     def corridor(self) -> gaps.GapsParams:
         return self._params
+
+
+def _any(causes: dict[str, jax.Array]) -> jax.Array:
+    """1.0 if any of the scalar 0/1 `causes` holds, else 0.0."""
+    return jp.max(jp.stack(list(causes.values())))
