@@ -157,22 +157,24 @@ _C_ON_CPU = _c_on_cpu()
 # The gpu preset keeps the generic one's scale (4,096 envs, 30M steps; Brax's reward scaling and
 # entropy already) and takes the same reshaped rewards and clipping: with Brax's rewards the
 # cpu runs stood still or fell, whatever the batch (README, Does every task learn?).
-_HUMANOID_TASK = {"env_config": {"healthy_reward": 2.0, "healthy_min_upright": 0.7, "forward_velocity_cap": 1.0}}
+_HUMANOID_SHARED = {
+    "env_config": {"healthy_reward": 2.0, "healthy_min_upright": 0.7, "forward_velocity_cap": 1.0},
+    "ppo": {"max_grad_norm": 1.0},
+}
 _HUMANOID_PRESETS = _c_on_cpu(
     config_lib.merge(
-        _HUMANOID_TASK,
+        _HUMANOID_SHARED,
         {
             "ppo": {
                 "num_timesteps": 20_000_000,
                 "reward_scaling": 0.1,
                 "entropy_cost": 1e-3,
-                "max_grad_norm": 1.0,
                 "num_evals": 21,
                 "num_eval_envs": 32,
             },
         },
     ),
-    gpu=config_lib.merge(_HUMANOID_TASK, {"ppo": {"max_grad_norm": 1.0}}),
+    gpu=_HUMANOID_SHARED,
 )
 
 # ant_run_gaps on a CPU: the ant first learns to run in the same corridor without gaps, then with
