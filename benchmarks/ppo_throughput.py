@@ -35,7 +35,7 @@ import jax
 from vnl.envs import registry
 from vnl.physics import c_physics
 from vnl.train import config as train_config
-from vnl.train import ppo
+from vnl.train import trainer
 
 
 def brax_direct(cfg: train_config.TrainConfig) -> list[float]:
@@ -46,7 +46,7 @@ def brax_direct(cfg: train_config.TrainConfig) -> list[float]:
     brax_ppo.train(
         environment=env,
         progress_fn=lambda step, m: sps.append(float(m.get("training/sps", 0.0))),
-        **ppo.brax_kwargs(cfg),
+        **trainer.brax_kwargs(cfg),
     )
     return [s for s in sps if s > 0]
 
@@ -55,7 +55,7 @@ def vnl_adapter(cfg: train_config.TrainConfig) -> list[float]:
     from vnl.io import checkpoint
 
     with tempfile.TemporaryDirectory() as d:
-        result = ppo.train(cfg, Path(d) / "run", say=lambda s: None)
+        result = trainer.train(cfg, Path(d) / "run", say=lambda s: None)
         last = checkpoint.step_dir(result.run_dir, result.steps)
         size = sum(f.stat().st_size for f in last.rglob("*") if f.is_file())
         state = (last / checkpoint.TRAIN_STATE).stat().st_size
@@ -79,7 +79,7 @@ def compare_physics(env: str, steps: int, repeats: int) -> None:
 
             physics0 = c_physics.host_seconds()
             with tempfile.TemporaryDirectory() as d:
-                result = ppo.train(cfg, Path(d) / "run", say=say)
+                result = trainer.train(cfg, Path(d) / "run", say=say)
             physics = c_physics.host_seconds() - physics0
             ready = float(next(x for x in lines if "compiled and ready" in x).split()[0])
             after_compile = time.time() - t - ready

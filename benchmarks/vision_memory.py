@@ -28,7 +28,7 @@ import jax
 import jax.numpy as jp
 import numpy as np
 
-from vnl.env import Env, State
+from vnl.tasks.contract import Env, State
 from vnl.train import config as train_config
 from vnl.train.loop import PPOLoop
 

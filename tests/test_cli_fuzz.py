@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vnl import config as config_lib
+from vnl import typed_config as config_lib
 from vnl.train import config as train_config
 
 pytestmark = pytest.mark.xdist_group("cli_fuzz")

@@ -12,7 +12,7 @@ from vnl.errors import VnlError
 from vnl.io import checkpoint, plot
 from vnl.io import metrics as metrics_io
 from vnl.train import config as train_config
-from vnl.train import ppo, warm_start
+from vnl.train import trainer, warm_start
 
 pytestmark = [pytest.mark.xdist_group("curriculum"), pytest.mark.usefixtures("point_envs")]
 
@@ -64,7 +64,7 @@ def compile_cache(tmp_path_factory):
 @pytest.fixture(scope="module")
 def parent(tmp_path_factory):
     out = tmp_path_factory.mktemp("parent") / "run"
-    ppo.train(train_config.build("test_point", "tiny", file_values=SETTINGS), out, say=quiet)
+    trainer.train(train_config.build("test_point", "tiny", file_values=SETTINGS), out, say=quiet)
     return out
 
 
@@ -78,7 +78,7 @@ def child_config(parent_dir, keep_optimizer=False, **env_config):
 def child(parent, tmp_path_factory):
     """A run warm-started from `parent` on another env config (the target at 0.5 m, not 1 m)."""
     out = tmp_path_factory.mktemp("child") / "run"
-    ppo.train(child_config(parent, target=0.5), out, say=quiet)
+    trainer.train(child_config(parent, target=0.5), out, say=quiet)
     return out
 
 
@@ -155,7 +155,7 @@ def test_warm_start_with_an_added_sensor_begins_as_the_parent(parent, tmp_path, 
     with pytest.raises(VnlError, match="drop --keep-optimizer"):
         warm_start.apply(loop, loop.init(config.seed), grown, keep_optimizer=True)
     out = tmp_path / "child"
-    ppo.train(config, out, say=print)
+    trainer.train(config, out, say=print)
     assert "new observation entries target (1)" in capsys.readouterr().out
     child_act = policy_lib.load_policy(out, step=0, deterministic=True)
     np.testing.assert_allclose(child_act(jp.asarray(child_obs), key), act(jp.asarray(obs), key), atol=1e-6)
@@ -193,7 +193,7 @@ def test_warm_start_errors_are_one_line_before_anything_is_written(parent, tmp_p
 
 def test_lineage_plot_draws_the_parent_then_the_child(parent, child, tmp_path):
     grandchild = tmp_path / "grandchild"
-    ppo.train(child_config(child, target=0.5), grandchild, say=quiet)  # the child's programs: cached
+    trainer.train(child_config(child, target=0.5), grandchild, say=quiet)  # the child's programs: cached
     assert plot.lineage(grandchild) == [(parent.absolute(), K), (child.absolute(), K), (grandchild, None)]
     # A moved parent is found next to its child by name.
     moved = tmp_path / "moved"
@@ -230,7 +230,7 @@ def staged(tmp_path_factory):
     out = tmp_path_factory.mktemp("curriculum") / "run"
     config = train_config.build("test_point", "tiny", file_values=CURRICULUM)
     messages = []
-    ppo.train(config, out, say=messages.append)
+    trainer.train(config, out, say=messages.append)
     return out, messages
 
 
@@ -253,7 +253,7 @@ def test_curriculum_resumes_exactly_at_any_stage(staged, tmp_path, step):
     out, _ = staged
     copy = tmp_path / "copy"
     shutil.copytree(out, copy)
-    ppo.resume(copy, from_step=step, say=quiet)
+    trainer.resume(copy, from_step=step, say=quiet)
     for a, b in zip(tree_arrays(out), tree_arrays(copy), strict=True):
         np.testing.assert_array_equal(a, b)
     _, sa, _ = checkpoint.load_train_state(out)
@@ -270,7 +270,7 @@ def test_a_resumed_curriculum_run_given_more_steps_extends_its_last_stage(staged
     out, _ = staged
     copy = tmp_path / "longer"
     shutil.copytree(out, copy)
-    ppo.resume(copy, flags={"ppo": {"num_timesteps": 3 * K}}, say=quiet)
+    trainer.resume(copy, flags={"ppo": {"num_timesteps": 3 * K}}, say=quiet)
     records = metrics_io.read(copy / "metrics.jsonl")
     assert untimed(records[:5]) == untimed(metrics_io.read(out / "metrics.jsonl"))
     assert [r["step"] for r in records[5:]] == [5 * 512, 6 * 512]
@@ -278,7 +278,7 @@ def test_a_resumed_curriculum_run_given_more_steps_extends_its_last_stage(staged
     saved = yaml.safe_load((copy / "config.yaml").read_text())
     assert [s["steps"] for s in saved["curriculum"]] == [K, 2 * K] and saved["ppo"]["num_timesteps"] == 3 * K
     with pytest.raises(VnlError, match="ends before the curriculum's last stage starts"):
-        ppo.resume(copy, flags={"ppo": {"num_timesteps": 512}}, say=quiet)
+        trainer.resume(copy, flags={"ppo": {"num_timesteps": 512}}, say=quiet)
     with pytest.raises(VnlError, match="num_timesteps"):  # one line, not a TypeError
         train_config.resume_config(train_config.read_config(copy), ["ppo.num_timesteps=abc"], None)
 
@@ -295,7 +295,7 @@ def test_curriculum_config_errors_name_the_problem(staged):
         train_config.build("test_point", "tiny", file_values=bad)
     out, _ = staged
     with pytest.raises(VnlError, match="curriculum"):
-        ppo.resume(out, assignments=["curriculum=[]"], say=quiet)
+        trainer.resume(out, assignments=["curriculum=[]"], say=quiet)
 
 
 def test_an_env_preset_may_be_a_curriculum_whose_last_stage_is_the_users_task():
@@ -344,7 +344,7 @@ def test_ant_gaps_cpu_preset_sees_a_small_depth_image_of_the_floor_only_with_vis
 def parent_seed1(tmp_path_factory):
     """`parent`'s config with another seed (its programs come from the compilation cache)."""
     out = tmp_path_factory.mktemp("parent1") / "run"
-    ppo.train(train_config.build("test_point", "tiny", file_values=SETTINGS, flags={"seed": 1}), out, say=quiet)
+    trainer.train(train_config.build("test_point", "tiny", file_values=SETTINGS, flags={"seed": 1}), out, say=quiet)
     return out
 
 
@@ -390,3 +390,33 @@ def test_compare_networks_on_the_same_episodes(parent, parent_seed1, child, tmp_
     assert "at least two networks" in capsys.readouterr().err
     assert main(["compare", str(parent), f"{parent}@x", "--no-compile-cache"]) == 2
     assert "RUN_DIR@STEP" in capsys.readouterr().err
+
+
+def test_a_warm_started_curriculum_builds_each_stages_world_once(parent, tmp_path, capsys):
+    """`vnl train ENV --init-from RUN` with two stages and the final video: the camera check, the
+    warm start's layout check, the disk estimate, the stages' loops and the video all use the
+    run's two worlds, each built once (`vnl.train.worlds`)."""
+    from vnl.tasks.contract import world_builds
+
+    config = tmp_path / "stages.yaml"
+    config.write_text(yaml.safe_dump({**CURRICULUM, "log": {"progress": False}}))
+    before = world_builds()
+    argv = ["train", "test_point", "--preset", "tiny", "--config", str(config), "--init-from", str(parent)]
+    assert main([*argv, "--out", str(tmp_path / "run"), "--no-compile-cache"]) == 0
+    assert world_builds() - before == 2
+    said = capsys.readouterr().out
+    assert said.count("[vnl] built the world of test_point (stage") == 2, said
+
+
+def test_commands_after_training_use_the_env_of_the_checkpoints_stage(staged, tmp_path):
+    """`vnl eval` of a curriculum run: a stage-1 checkpoint is evaluated in stage 1's env (20-step
+    episodes), the last in stage 2's (40), each with one world built."""
+    from vnl.tasks.contract import world_builds
+
+    out, _ = staged
+    for step, length in ((512, 20), (4 * 512, 40)):
+        before = world_builds()
+        assert main(["eval", str(out), "--step", str(step), "--episodes", "2", "--out", str(tmp_path / "e.json")]) == 0
+        assert world_builds() - before == 1
+        summary = json.loads((tmp_path / "e.json").read_text())
+        assert summary["max_steps"] == length and summary["checkpoint_step"] == step

@@ -14,13 +14,13 @@ import numpy as np
 import pytest
 
 from vnl import analysis
-from vnl import config as config_lib
-from vnl.envs import registry
+from vnl import typed_config as config_lib
 from vnl.errors import VnlError
 from vnl.io import checkpoint
 from vnl.io import metrics as metrics_io
 from vnl.tasks.base import spawn_height
 from vnl.train import config as train_config
+from vnl.train import presets
 from vnl.train.progress import progress_line
 from vnl.train.signals import StopRequest
 
@@ -190,22 +190,21 @@ def test_a_multi_process_run_never_aborts_one_process_alone():
 # --- shared mutable defaults --------------------------------------------------------------------
 
 
-def test_registry_presets_and_config_mappings_are_frozen_copies():
+def test_presets_and_config_mappings_are_frozen_copies():
     rodent_envs = ["rodent_run_gaps", "rodent_escape_bowl", "run_gaps", "escape_bowl", "rodent_run", "run"]
-    presets = [registry.entry(n).presets for n in rodent_envs]
-    assert presets[0] == presets[2] and presets[1] == presets[3] and presets[4] == presets[5]  # the aliases
-    # the rat's shared preset: rodent_run's cpu preset adds the learning rate decaying to 0, the
-    # bowl's discounts by 0.99 on every device (registry comments; the corridor's curriculum:
+    rat = [{p: presets.for_env(n, p) for p in presets.names()} for n in rodent_envs]
+    assert rat[0] == rat[2] and rat[1] == rat[3] and rat[4] == rat[5]  # the aliases
+    # the rat's shared preset (_rodent.yaml): rodent_run's cpu preset adds the learning rate
+    # decaying to 0, the bowl's discounts by 0.99 on every device (the corridor's curriculum:
     # test_curriculum.py)
-    rat = registry._RODENT_PRESETS
-    assert config_lib.freeze(config_lib.merge(rat, {"cpu": {"ppo": {"learning_rate_final": 0.0}}})) == presets[4]
+    shared = {p: presets._file("_rodent").get(p, {}) for p in presets.names()}
+    assert config_lib.merge(shared, {"cpu": {"ppo": {"learning_rate_final": 0.0}}}) == rat[4]
     discount = {"ppo": {"discounting": 0.99}}
-    assert config_lib.freeze(config_lib.merge(rat, {"cpu": discount, "gpu": discount})) == presets[1]
-    assert len({id(p) for p in presets}) == len(presets)  # no two entries share one dict
+    assert config_lib.merge(shared, {"cpu": discount, "gpu": discount}) == rat[1]
     with pytest.raises(TypeError):
-        presets[0]["cpu"]["ppo"]["num_envs"] = 8
+        presets.for_env("rodent_run", "cpu")["ppo"]["num_envs"] = 8
     with pytest.raises(TypeError):
-        train_config.PRESETS["tiny"]["ppo"]["num_envs"] = 8
+        presets.generic("tiny")["ppo"]["num_envs"] = 8
     cfg = train_config.build("ant_run", "tiny", {"env_config": {"reset_noise_scale": 0.05}})
     with pytest.raises(TypeError):
         cfg.env_config["reset_noise_scale"] = 1.0

@@ -31,7 +31,7 @@ import numpy as np
 import tiny_env
 from vnl import compile_cache
 from vnl.io import checkpoint
-from vnl.train import config as tc, ppo
+from vnl.train import config as tc, trainer
 
 tiny_env.register()
 compile_cache.enable(sys.argv[3])
@@ -49,9 +49,9 @@ settings = {{
     "log": {{"video": False, "keep_checkpoints": 3}},
 }}
 if sys.argv[1] == "train":
-    ppo.train(tc.build("test_point", "tiny", settings), sys.argv[2], say=say)
+    trainer.train(tc.build("test_point", "tiny", settings), sys.argv[2], say=say)
 else:
-    ppo.resume(sys.argv[2], say=say)
+    trainer.resume(sys.argv[2], say=say)
 """
 EPOCH = 1024  # env steps between evaluations: 512 * 48 / (25 - 1)
 TOTAL = 512 * 48

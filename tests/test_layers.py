@@ -1,5 +1,6 @@
-"""vnl's modules import each other in the order README's "Layers" section writes down, and in no
-circle. The layers are read from README itself, so the text and the code cannot drift apart."""
+"""vnl's modules import each other in the order docs/developers/layers.md writes down, and in no
+circle; no module is over 500 lines. The layers are read from that page itself, so the text and
+the code cannot drift apart."""
 
 import ast
 import re
@@ -10,11 +11,11 @@ PACKAGE = ROOT / "vnl"
 
 
 def written_layers() -> list[set[str]]:
-    """The README's layer table, top (index 0) to bottom: each layer's units (`vnl.train`,
-    `vnl.env`, ...)."""
-    text = (ROOT / "README.md").read_text()
+    """The layer table of docs/developers/layers.md, top (index 0) to bottom: each layer's units
+    (`vnl.train`, `vnl.tasks`, ...)."""
+    text = (ROOT / "docs" / "developers" / "layers.md").read_text()
     block = re.search(r"<!-- layers -->\n```\n(.*?)```", text, re.S)
-    assert block, "README.md has no layers block (<!-- layers --> followed by a code block)"
+    assert block, "docs/developers/layers.md has no layers block (<!-- layers --> followed by a code block)"
     layers = []
     for line in block.group(1).strip().splitlines():
         paths = re.findall(r"vnl/[\w/]*?(?:\.py|/)", line)
@@ -52,7 +53,7 @@ def graph() -> dict[str, set[str]]:
 def unit_of(module: str, units: set[str]) -> str:
     """The layer unit holding `module`: the longest unit that is it or a package above it."""
     owners = [u for u in units if module == u or module.startswith(u + ".")]
-    assert owners, f"{module} is in no layer of README's layers block"
+    assert owners, f"{module} is in no layer of docs/developers/layers.md"
     return max(owners, key=len)
 
 
@@ -108,3 +109,8 @@ def test_the_checks_catch_an_upward_import_and_a_cycle():
     assert unit_of("vnl.train.loop", set().union(*layers)) == "vnl.train"
     top = {u: i for i, layer in enumerate(layers) for u in layer}
     assert top["vnl.cli"] < top["vnl.train"] < top["vnl.envs"] < top["vnl.tasks"] < top["vnl.walkers"]
+
+
+def test_no_module_is_over_500_lines():
+    long = {str(p.relative_to(ROOT)): n for p in PACKAGE.rglob("*.py") if (n := len(p.read_text().splitlines())) > 500}
+    assert not long, long

@@ -6,15 +6,15 @@ import numpy as np
 import pytest
 import test_train
 
-from vnl import config as config_lib
 from vnl import record
+from vnl import typed_config as config_lib
 from vnl.envs import registry
 from vnl.errors import VnlError
 from vnl.io import checkpoint
 from vnl.io import metrics as metrics_io
 from vnl.policy import load_run, make_policy_fn
 from vnl.train import config as train_config
-from vnl.train import ppo, warm_start
+from vnl.train import trainer, warm_start
 from vnl.train.loop import PPOLoop
 from vnl.train.networks import make_network
 
@@ -35,7 +35,7 @@ LOG_STD = ".training.params.policy['params']['std_logparam']['log_value']"
 def trained(tmp_path_factory):
     out = tmp_path_factory.mktemp("runs") / "normal"
     cfg = train_config.build("test_point", "tiny", file_values=SETTINGS)
-    ppo.train(cfg, out, say=lambda s: None)
+    trainer.train(cfg, out, say=lambda s: None)
     return cfg, out
 
 

@@ -319,8 +319,8 @@ QUIET_SCRIPT = textwrap.dedent(
     """
     import sys
     if sys.argv[2] == "cli":
-        from vnl.cli import _configure_process
-        _configure_process(mujoco_needed=False)
+        from vnl.cli.process import configure_process
+        configure_process(mujoco_needed=False)
     import jax, jax.numpy as jp
     from vnl import compile_cache
     compile_cache.enable(sys.argv[1])

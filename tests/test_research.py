@@ -24,7 +24,7 @@ from vnl.io import checkpoint, plot, tracking
 from vnl.io import metrics as metrics_io
 from vnl.policy import load_run
 from vnl.train import config as train_config
-from vnl.train import ppo
+from vnl.train import trainer
 from vnl.train.loop import PPOLoop
 
 pytestmark = [pytest.mark.xdist_group("research"), pytest.mark.usefixtures("point_envs")]
@@ -63,7 +63,7 @@ def untimed(records):
 def reference(tmp_path_factory):
     """An uninterrupted run of 2K steps (two epochs of K)."""
     out = tmp_path_factory.mktemp("ref") / "run"
-    result = ppo.train(cfg(), out, say=quiet)
+    result = trainer.train(cfg(), out, say=quiet)
     return out, result
 
 
@@ -71,9 +71,9 @@ def reference(tmp_path_factory):
 def resumed(tmp_path_factory):
     """A run of K steps, then resumed to 2K."""
     out = tmp_path_factory.mktemp("resumed") / "run"
-    first = ppo.train(cfg(num_timesteps=K, num_evals=2), out, say=quiet)
+    first = trainer.train(cfg(num_timesteps=K, num_evals=2), out, say=quiet)
     assert first.steps == K
-    result = ppo.resume(out, flags={"ppo": {"num_timesteps": 2 * K}}, say=quiet)
+    result = trainer.resume(out, flags={"ppo": {"num_timesteps": 2 * K}}, say=quiet)
     return out, result
 
 
@@ -87,7 +87,7 @@ def test_loop_matches_brax_ppo_train(desired_kl):
     env = registry.entry("test_point").factory(config.resolved_env_config())
     brax_records = []
     _, brax_params, _ = brax_ppo.train(
-        environment=env, progress_fn=lambda s, m: brax_records.append((s, m)), **ppo.brax_kwargs(config)
+        environment=env, progress_fn=lambda s, m: brax_records.append((s, m)), **trainer.brax_kwargs(config)
     )
     loop = PPOLoop(env, config)
     state = loop.init(config.seed)
@@ -136,10 +136,10 @@ def test_resume_is_bit_exact_on_ant_run(tmp_path):
     training state and metrics."""
     values = {"ppo": {"num_timesteps": 2 * K, "num_evals": 3}, "env_config": {"impl": "c"}, "log": SETTINGS["log"]}
     ref, res = tmp_path / "ref", tmp_path / "res"
-    ppo.train(train_config.build("ant_run", "tiny", file_values=values), ref, say=quiet)
+    trainer.train(train_config.build("ant_run", "tiny", file_values=values), ref, say=quiet)
     shutil.copytree(ref, res)
     # Sets step 2K aside and recomputes it, with another thread count (bit-identical at any).
-    result = ppo.resume(res, from_step=K, flags={"env_config": {"threads": 1}}, say=quiet)
+    result = trainer.resume(res, from_step=K, flags={"env_config": {"threads": 1}}, say=quiet)
     assert result.steps == 2 * K and checkpoint.steps(res) == [0, K, 2 * K]
     _, sa, _ = checkpoint.load_train_state(ref)
     _, sb, _ = checkpoint.load_train_state(res)
@@ -156,11 +156,11 @@ def test_learning_rate_decay_resumes_exactly(reference, tmp_path):
     config.yaml fixes: a run stopped at K and resumed to 2K is the 2K run never stopped, and a
     resume past the decay trains on at the final rate (and says so)."""
     ref, res = tmp_path / "ref", tmp_path / "res"
-    ppo.train(cfg(learning_rate_final=0.0), ref, say=quiet)
-    ppo.train(
+    trainer.train(cfg(learning_rate_final=0.0), ref, say=quiet)
+    trainer.train(
         cfg(num_timesteps=K, num_evals=2, learning_rate_final=0.0, learning_rate_decay_steps=2 * K), res, say=quiet
     )
-    ppo.resume(res, flags={"ppo": {"num_timesteps": 2 * K}}, say=quiet)
+    trainer.resume(res, flags={"ppo": {"num_timesteps": 2 * K}}, say=quiet)
     _, sa, _ = checkpoint.load_train_state(ref)
     _, sb, _ = checkpoint.load_train_state(res)
     for k in sa:
@@ -176,7 +176,7 @@ def test_learning_rate_decay_resumes_exactly(reference, tmp_path):
     _, decayed = checkpoint.load(ref)
     assert any(not np.array_equal(x, y) for x, y in zip(leaves(constant), leaves(decayed), strict=True))
     said = []
-    ppo.resume(res, flags={"ppo": {"num_timesteps": 3 * K}}, say=said.append)
+    trainer.resume(res, flags={"ppo": {"num_timesteps": 3 * K}}, say=said.append)
     assert any("stays there" in line for line in said), said
     assert metrics_io.read(res / "metrics.jsonl")[-1]["training/learning_rate"] == 0.0
 
@@ -217,16 +217,16 @@ def test_sigterm_then_resume_gives_the_uninterrupted_result(reference, tmp_path)
 def test_resume_refuses_unsafe_changes(reference):
     ref, _ = reference
     with pytest.raises(VnlError, match=r"network.policy_hidden_layer_sizes.*may only change ppo.num_timesteps"):
-        ppo.resume(ref, assignments=["network.policy_hidden_layer_sizes=[8]"], say=quiet)
+        trainer.resume(ref, assignments=["network.policy_hidden_layer_sizes=[8]"], say=quiet)
     with pytest.raises(VnlError, match="seed"):
-        ppo.resume(ref, flags={"seed": 3}, say=quiet)
+        trainer.resume(ref, flags={"seed": 3}, say=quiet)
     with pytest.raises(VnlError, match="ppo.learning_rate"):
-        ppo.resume(ref, assignments=["ppo.learning_rate=0.1"], say=quiet)
+        trainer.resume(ref, assignments=["ppo.learning_rate=0.1"], say=quiet)
     with pytest.raises(VnlError, match="no checkpoint at step 7"):
-        ppo.resume(ref, from_step=7, say=quiet)
+        trainer.resume(ref, from_step=7, say=quiet)
     # Safe keys pass.
     saved = train_config.resolved(cfg())
-    new = ppo.resume_config(saved, ["log.keep_checkpoints=2", "ppo.num_timesteps=9999"], None)
+    new = trainer.resume_config(saved, ["log.keep_checkpoints=2", "ppo.num_timesteps=9999"], None)
     assert new.ppo.num_timesteps == 9999 and new.log.keep_checkpoints == 2
 
 
@@ -234,7 +234,7 @@ def test_resume_from_an_earlier_step_keeps_what_it_replaces(reference, tmp_path)
     ref, _ = reference
     copy = tmp_path / "copy"
     shutil.copytree(ref, copy)
-    result = ppo.resume(copy, from_step=K, say=quiet)
+    result = trainer.resume(copy, from_step=K, say=quiet)
     assert result.steps == 2 * K
     aside = list((copy / "checkpoints").glob("superseded-*/000000002048"))
     assert len(aside) == 1  # the replaced checkpoint is kept, not deleted
@@ -298,14 +298,14 @@ def test_tensorboard_and_wandb_offline(tmp_path, monkeypatch):
     )
     out = tmp_path / "tracked"
 
-    def finish(run_dir):  # stands in for the final-policy video, which needs OpenGL
+    def finish(run_dir, env):  # stands in for the final-policy video, which needs OpenGL
         from vnl.io import video
 
         path = run_dir / "final_policy.mp4"
         video.write_mp4(np.random.default_rng(0).integers(0, 255, (4, 32, 32, 3), np.uint8), str(path), fps=4)
         return path
 
-    ppo.train(config, out, say=quiet, finish=finish)
+    trainer.train(config, out, say=quiet, finish=finish)
     records = metrics_io.read(out / "metrics.jsonl")
     scalars = _tensorboard_scalars(out / "tensorboard")
     for key in ("eval/episode_reward", "eval/episode_reward/distance"):

@@ -18,14 +18,14 @@ import pytest
 from mujoco import mjx
 from tiny_env import XML as POINT_XML
 
-from vnl import config as config_lib
+from vnl import typed_config as config_lib
 from vnl.envs import randomize, registry
 from vnl.envs.wrappers import wrap_for_training
 from vnl.errors import VnlError
 from vnl.io import checkpoint
 from vnl.io import metrics as metrics_io
 from vnl.train import config as train_config
-from vnl.train import ppo, rundir
+from vnl.train import rundir, trainer
 from vnl.train.config import read_config
 from vnl.train.loop import PPOLoop
 
@@ -170,14 +170,14 @@ TWO_DEVICES = textwrap.dedent(
     from vnl.train import config as tc
     from vnl.train.loop import PPOLoop
     from vnl.envs import registry
-    from vnl.train import ppo
+    from vnl.train import trainer
     out = {{"devices": jax.local_device_count()}}
-    train = ppo.train
+    train = trainer.train
     def spy(*args, **kwargs):  # the final parameters as the 2-device run holds them
         result = train(*args, **kwargs)
         np.savez({params!r}, *[np.asarray(x) for x in jax.tree.leaves(result.params)])
         return result
-    ppo.train = spy
+    trainer.train = spy
     base = ["train", "test_point", "--preset", "tiny", "--no-video", "--out"]
     rand = ["--set", "randomize.joint_damping=[0.2,5.0]", "--set", "ppo.num_timesteps=2048"]
     out["bad_rc"] = main([*base, {bad!r}, "--set", "ppo.num_minibatches=16", "--set", "ppo.batch_size=1"])
@@ -230,7 +230,7 @@ def test_trains_on_two_devices_and_the_checkpoint_resumes_on_one(tmp_path):
     for key, value in arrays.items():
         np.testing.assert_array_equal(back[key], value, err_msg=key)
     before = metrics_io.read(run / "metrics.jsonl")
-    result = ppo.resume(run, assignments=["ppo.num_timesteps=4096"], say=quiet)
+    result = trainer.resume(run, assignments=["ppo.num_timesteps=4096"], say=quiet)
     assert not result.interrupted and result.steps == 4096
     assert all(np.isfinite(np.asarray(x)).all() for x in jax.tree.leaves(result.params))
     after = metrics_io.read(run / "metrics.jsonl")
@@ -244,7 +244,7 @@ TWO_PROCESSES = textwrap.dedent(
     import tiny_env; tiny_env.register()
     import jax, numpy as np
     from vnl.cli import main
-    from vnl.train import ppo
+    from vnl.train import trainer
     out = {{}}
 
     def spy(run):
@@ -256,7 +256,7 @@ TWO_PROCESSES = textwrap.dedent(
             return result
         return wrapped
 
-    ppo.train, ppo.resume = spy(ppo.train), spy(ppo.resume)
+    trainer.train, trainer.resume = spy(trainer.train), spy(trainer.resume)
     port, pid, mode = sys.argv[1:]
     join = ["--coordinator", "127.0.0.1:" + port, "--num-processes", "2", "--process-id", pid]
     if mode == "train":
@@ -333,7 +333,7 @@ def test_trains_on_two_processes_and_the_checkpoint_resumes_on_one(tmp_path):
     _, stdouts = _two_processes(script, "resume")
     assert "from step 2,048" in stdouts[0]
     assert [r["step"] for r in metrics_io.read(run / "metrics.jsonl")] == [0, 2048, 4096]
-    result = ppo.resume(run, assignments=["ppo.num_timesteps=6144"], say=quiet)
+    result = trainer.resume(run, assignments=["ppo.num_timesteps=6144"], say=quiet)
     assert not result.interrupted and result.steps == 6144
     assert [r["step"] for r in metrics_io.read(run / "metrics.jsonl")] == [0, 2048, 4096, 6144]
     assert all(np.isfinite(np.asarray(x)).all() for x in jax.tree.leaves(result.params))
@@ -440,7 +440,7 @@ def test_training_on_an_env_that_blows_up_finishes_with_finite_params(tmp_path):
     assert np.isfinite(np.asarray(s.data.qpos)).all() and np.isfinite(np.asarray(s.obs)).all()
 
     cfg = train_config.build("test_point_unstable", "tiny", file_values=QUIET)
-    result = ppo.train(cfg, tmp_path / "run", say=quiet)
+    result = trainer.train(cfg, tmp_path / "run", say=quiet)
     assert not result.interrupted
     assert all(np.isfinite(np.asarray(x)).all() for x in jax.tree.leaves(result.params))
     records = metrics_io.read(tmp_path / "run" / "metrics.jsonl")
@@ -453,7 +453,7 @@ def test_full_disk_fails_before_training(tmp_path, monkeypatch):
     usage = rundir.shutil.disk_usage(tmp_path)
     monkeypatch.setattr(rundir.shutil, "disk_usage", lambda _: usage._replace(free=10 << 20))
     with pytest.raises(VnlError, match=r"not enough free disk space.*MiB free.*keep_checkpoints"):
-        ppo.train(cfg, tmp_path / "run", say=quiet)
+        trainer.train(cfg, tmp_path / "run", say=quiet)
     assert checkpoint.steps(tmp_path / "run") == []
 
 
@@ -471,7 +471,7 @@ def test_disk_full_while_writing_a_checkpoint_keeps_the_last_good_one(tmp_path, 
 
     monkeypatch.setattr(checkpoint.np, "savez", savez)
     with pytest.raises(VnlError, match=r"step 4,096.*No space left on device.*step 0.*--resume"):
-        ppo.train(cfg, tmp_path / "run", say=quiet)
+        trainer.train(cfg, tmp_path / "run", say=quiet)
     run = tmp_path / "run"
     assert checkpoint.steps(run) == [0]
     assert not list((run / "checkpoints").glob(".tmp-*"))  # no half-written checkpoint left

@@ -14,7 +14,7 @@ from vnl.io import checkpoint
 from vnl.io import metrics as metrics_io
 from vnl.policy import load_run, make_policy_fn
 from vnl.train import config as train_config
-from vnl.train import ppo
+from vnl.train import trainer
 
 pytestmark = [pytest.mark.xdist_group("train"), pytest.mark.usefixtures("point_envs")]
 
@@ -43,7 +43,7 @@ SETTINGS = {
 def trained(tmp_path_factory):
     out = tmp_path_factory.mktemp("runs") / "point"
     cfg = train_config.build("test_point", "tiny", file_values=SETTINGS)
-    result = ppo.train(cfg, out, say=lambda s: None)
+    result = trainer.train(cfg, out, say=lambda s: None)
     return cfg, out, result
 
 
@@ -117,7 +117,7 @@ def test_existing_run_is_not_overwritten(trained):
     cfg, out, _ = trained
     before = (out / "metrics.jsonl").read_bytes()
     with pytest.raises(VnlError, match="already holds a run"):
-        ppo.train(cfg, out, say=lambda s: None)
+        trainer.train(cfg, out, say=lambda s: None)
     assert (out / "metrics.jsonl").read_bytes() == before
 
 
@@ -126,7 +126,7 @@ def test_unwritable_run_dir_fails_before_training(tmp_path):
     blocker = tmp_path / "file"
     blocker.write_text("not a directory")
     with pytest.raises(VnlError, match="cannot write to run directory"):
-        ppo.train(cfg, blocker / "run", say=lambda s: None)
+        trainer.train(cfg, blocker / "run", say=lambda s: None)
 
 
 def test_no_checkpoint_is_a_clear_error(tmp_path):
@@ -150,7 +150,7 @@ def test_sigterm_during_first_evaluation_still_leaves_a_checkpoint(tmp_path, mon
         return original(self, state, training_metrics)
 
     monkeypatch.setattr(PPOLoop, "evaluate", evaluate)
-    result = ppo.train(cfg, tmp_path / "run", say=lambda s: None)
+    result = trainer.train(cfg, tmp_path / "run", say=lambda s: None)
     assert result.interrupted and len(calls) == 1
     assert checkpoint.steps(tmp_path / "run") == [0]
     assert [r["step"] for r in metrics_io.read(tmp_path / "run" / "metrics.jsonl")] == [0]

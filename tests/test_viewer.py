@@ -11,8 +11,8 @@ import jax
 import numpy as np
 import pytest
 
-from vnl import config as config_lib
 from vnl import record, viewer
+from vnl import typed_config as config_lib
 from vnl.cli import main
 from vnl.envs import registry
 from vnl.policy import LoadedRun, make_network, make_policy_fn

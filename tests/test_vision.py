@@ -359,7 +359,7 @@ def test_vision_run_trains_resumes_evaluates_and_renders_what_the_policy_sees(tm
     from vnl.io import checkpoint
     from vnl.io import metrics as metrics_io
     from vnl.io.video import read_mp4
-    from vnl.train import ppo
+    from vnl.train import trainer
 
     out = tmp_path / "vision"
     vnl_cmd = [sys.executable, "-m", "vnl.cli"]
@@ -375,7 +375,7 @@ def test_vision_run_trains_resumes_evaluates_and_renders_what_the_policy_sees(tm
     # Checkpoints hold the pixel observations of every env; the run continues exactly from them.
     _, arrays, _ = checkpoint.load_train_state(out)
     assert arrays[".env.obs['pixels/egocentric']"].shape == (16, 16, 16, 3)
-    result = ppo.resume(out, assignments=["ppo.num_timesteps=4096"], say=lambda _: None)
+    result = trainer.resume(out, assignments=["ppo.num_timesteps=4096"], say=lambda _: None)
     assert result.steps == 4096
     assert [r["step"] for r in metrics_io.read(out / "metrics.jsonl")] == [0, 2048, 4096]
     # The policy reads the pixels: the same state with a blank image gives another action.

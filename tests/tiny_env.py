@@ -6,8 +6,8 @@ import jax
 import jax.numpy as jp
 import mujoco
 
-from vnl.env import Env, State
 from vnl.envs import registry
+from vnl.tasks.contract import Env, State
 
 XML = """
 <mujoco>

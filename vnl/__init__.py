@@ -11,8 +11,8 @@ from typing import Any
 from vnl.errors import VnlError
 
 _LAZY = {
-    "Env": ("vnl.env", "Env"),
-    "State": ("vnl.env", "State"),
+    "Env": ("vnl.tasks.contract", "Env"),
+    "State": ("vnl.tasks.contract", "State"),
     "make": ("vnl.envs.registry", "make"),
     "names": ("vnl.envs.registry", "names"),
     "load_policy": ("vnl.policy", "load_policy"),

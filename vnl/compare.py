@@ -257,6 +257,32 @@ def parse_source(text: str) -> Source:
     return Source(path, step)
 
 
+def shared_recording(
+    sources: list[Source],
+    recording: str | Path | None = None,
+    episodes: int = 4,
+    steps: int | None = None,
+    seed: int = 0,
+    say: Any = print,
+) -> tuple[Any, str]:
+    """The episodes every network is shown: `recording`, else the first recording among the
+    sources, else a new recording of the first source's policy (`episodes` x `steps`, default the
+    episode length). Returns (dataset, a description of where it came from)."""
+    from vnl import record
+    from vnl.analysis import open_recording
+    from vnl.policy import load_run
+
+    path = recording or next((s.recording for s in sources if s.recording is not None), None)
+    if path is not None:
+        ds = open_recording(path)
+        return ds, f"{path} ({ds.sizes['episode']} episodes)"
+    run = load_run(sources[0].run_dir, step=sources[0].step)
+    steps = steps or run.config.episode_length()
+    say(f"[vnl] recording {episodes} episodes x {steps} steps of {run.run_dir} (step {run.step:,}) ...")
+    ds = record.record(run, episodes, steps, seed)
+    return ds, f"{episodes} episodes of {run.run_dir.name}@{run.step} (seed {seed})"
+
+
 def observations(ds: Any) -> tuple[np.ndarray, np.ndarray]:
     """The recording's observations (episodes, time, width) and its active-step mask (episodes,
     time) as booleans."""

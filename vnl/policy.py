@@ -9,11 +9,12 @@ from typing import Any
 
 import jax
 
-from vnl.env import Env
 from vnl.errors import VnlError
 from vnl.io import checkpoint
+from vnl.tasks.contract import Env
 from vnl.train.config import TrainConfig, read_config, task_variant
 from vnl.train.networks import make_network
+from vnl.train.worlds import trained_config
 
 Policy = Callable[[jax.Array, jax.Array], jax.Array]
 
@@ -48,15 +49,22 @@ def make_policy_fn(config: TrainConfig, env: Env, params: Any, deterministic: bo
 
 
 def load_run(
-    run_dir: str | Path, deterministic: bool = True, step: int | None = None, env_set: list[str] | None = None
+    run_dir: str | Path,
+    deterministic: bool = True,
+    step: int | None = None,
+    env_set: list[str] | None = None,
+    env: Env | None = None,
 ) -> LoadedRun:
-    """Reads config.yaml and the newest readable (or the given) checkpoint of `run_dir`; with
-    `env_set` (`env_config.KEY=VALUE` strings) the env is that variant of the run's task."""
-    config = read_config(run_dir)
+    """Reads config.yaml and the newest readable (or the given) checkpoint of `run_dir`, with the
+    env the checkpoint was trained on (a curriculum run: its stage's); with `env_set`
+    (`env_config.KEY=VALUE` strings) the env is that variant of it. `env`: that env, already built
+    (the trainer's final video), instead of building it."""
+    saved = read_config(run_dir)
+    loaded_step, params = checkpoint.load(run_dir, step)
+    config = trained_config(saved, run_dir, loaded_step)
     if env_set:
         config = task_variant(config, env_set)
-    loaded_step, params = checkpoint.load(run_dir, step)
-    env = config.make_env()
+    env = env if env is not None else config.make_env()
     expected = env.observation_size
     state_size = _state_width(env)
     mean = params[0].mean
@@ -69,17 +77,17 @@ def load_run(
     if not config.ppo.normalize_observations:
         got = state_size
     if got != state_size:
-        raise VnlError(_width_mismatch(run_dir, config, got, state_size, env_set))
+        raise VnlError(_width_mismatch(run_dir, loaded_step, config, got, state_size, env_set))
     policy = make_policy_fn(config, env, params, deterministic)
     return LoadedRun(Path(run_dir), config, env, policy, loaded_step, params, tuple(env_set or ()))
 
 
 def _width_mismatch(
-    run_dir: str | Path, config: TrainConfig, got: int, expected: int, env_set: list[str] | None
+    run_dir: str | Path, step: int, config: TrainConfig, got: int, expected: int, env_set: list[str] | None
 ) -> str:
     """The error for a policy reading `got` observation entries in an env that has `expected`:
     the variant's fault only if the run's own task still has the policy's width."""
-    if env_set and _state_width(read_config(run_dir).make_env()) == got:
+    if env_set and _state_width(trained_config(read_config(run_dir), run_dir, step).make_env()) == got:
         return (
             f"--set {' '.join(env_set)} changes {config.env}'s observation to width {expected}, and the "
             f"policy of {run_dir} reads {got}; evaluate on a variant with the same observation"

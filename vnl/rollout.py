@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 from typing import Any
 
 import jax
@@ -10,10 +11,10 @@ import jax.numpy as jp
 import numpy as np
 from mujoco import mjx
 
-from vnl.env import Env
 from vnl.errors import VnlError
 from vnl.io import video
-from vnl.policy import Policy
+from vnl.policy import LoadedRun, Policy
+from vnl.tasks.contract import Env
 from vnl.vision.camera import Camera
 from vnl.vision.env import VisionEnv, default_camera
 
@@ -159,6 +160,15 @@ def policy_video(
         frames = np.concatenate([outside, _upscale(camera_frames(env, view, qpos, mocap), height)], axis=2)
     video.write_mp4(frames, path, fps=1.0 / env.dt)
     return str(path), n
+
+
+def final_video(run: LoadedRun) -> tuple[str, int]:
+    """`final_policy.mp4` in the run directory: one episode of the run's policy with the run's
+    `log.video_*` settings (camera, seconds, size); returns (path, frames)."""
+    log = run.config.log
+    steps = int(round(log.video_seconds / run.env.dt))
+    out = str(Path(run.run_dir) / "final_policy.mp4")
+    return policy_video(run.env, run.policy, out, log.video_camera, steps, log.video_width, log.video_height)
 
 
 def _policy_view(env: Env, cam_id: int) -> Any:

@@ -379,14 +379,16 @@ def notebook(ds: Any, env: Any, episode: int = 0, units: int = 4, camera: bool =
 
 
 def recording_env(ds: Any) -> Any:
-    """The env of the run a recording was made of (built from its config.yaml, and the task
-    variant it was recorded on, `vnl record --set`; no checkpoint)."""
+    """The env of the run a recording was made of (built from its config.yaml: the env its
+    checkpoint was trained on, and the task variant it was recorded on, `vnl record --set`; no
+    checkpoint is loaded)."""
     from vnl.policy import read_config
     from vnl.train.config import task_variant
+    from vnl.train.worlds import trained_config
 
     run_dir = ds.attrs.get("run_dir")
     if not run_dir:
         raise VnlError("the recording does not say which run it recorded (no run_dir attribute)")
-    config = read_config(run_dir)
+    config = trained_config(read_config(run_dir), run_dir, int(ds.attrs.get("checkpoint_step", 0)))
     env_set = json.loads(ds.attrs.get("env_set", "[]"))
     return (task_variant(config, env_set) if env_set else config).make_env()

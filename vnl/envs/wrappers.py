@@ -14,8 +14,8 @@ import jax
 import jax.numpy as jp
 from brax.envs.wrappers import training as brax_training
 
-from vnl.env import State
 from vnl.envs.randomize import RandomizedVmapWrapper
+from vnl.tasks.contract import State
 from vnl.vision.env import VisionEnv
 
 EPISODE_KEYS = ("steps", "truncation")

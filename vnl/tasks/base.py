@@ -19,8 +19,8 @@ from dm_control import mjcf
 from mujoco import mjx
 
 from vnl import physics
-from vnl.env import Env
 from vnl.errors import VnlError
+from vnl.tasks.contract import Env
 from vnl.walkers import mjx_compat
 from vnl.walkers.base import Walker
 

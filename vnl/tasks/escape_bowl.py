@@ -31,10 +31,10 @@ from mujoco import mjx
 
 from vnl import rewards
 from vnl.arenas import bowl as bowl_arena
-from vnl.env import State
 from vnl.errors import VnlError
 from vnl.heightfield import Grid
 from vnl.tasks.base import WalkerTask, WalkerTaskConfig, body_id, build_walker, compile_world, spawn_height
+from vnl.tasks.contract import State
 
 
 @dataclasses.dataclass(frozen=True)

@@ -22,9 +22,9 @@ import mujoco
 from mujoco import mjx
 
 from vnl import physics
-from vnl.env import Env, State
 from vnl.errors import VnlError
 from vnl.tasks.base import check_warp_available
+from vnl.tasks.contract import Env, State
 
 XML = """
 <mujoco model="find_target">

@@ -28,7 +28,6 @@ from mujoco import mjx
 
 from vnl import physics
 from vnl.arenas import floor
-from vnl.env import State
 from vnl.errors import VnlError
 from vnl.physics import mjx_physics
 from vnl.tasks.base import (
@@ -40,6 +39,7 @@ from vnl.tasks.base import (
     compile_world,
     spawn_height,
 )
+from vnl.tasks.contract import State
 
 
 @dataclasses.dataclass(frozen=True)

@@ -37,7 +37,6 @@ from mujoco import mjx
 
 from vnl import rewards
 from vnl.arenas import gaps
-from vnl.env import State
 from vnl.errors import VnlError
 from vnl.tasks.base import (
     FootGeoms,
@@ -48,6 +47,7 @@ from vnl.tasks.base import (
     compile_world,
     spawn_height,
 )
+from vnl.tasks.contract import State
 
 
 @dataclasses.dataclass(frozen=True)

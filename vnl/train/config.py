@@ -1,4 +1,4 @@
-"""The one typed, frozen training config, its presets, and how YAML/`--set`/flags combine.
+"""The one typed, frozen training config, and how presets, YAML, `--set` and flags combine.
 
 Precedence (later wins): preset < YAML file < `--set key=value` < plain flags (`--steps`, ...).
 Everything is validated before the environment is compiled.
@@ -10,10 +10,11 @@ import dataclasses
 from pathlib import Path
 from typing import Any, Literal
 
-from vnl import config as config_lib
+from vnl import typed_config as config_lib
 from vnl.envs import registry
 from vnl.envs.randomize import RandomizeConfig
 from vnl.errors import VnlError
+from vnl.train import presets
 from vnl.vision.env import VisionConfig
 
 
@@ -262,8 +263,7 @@ class TrainConfig:
         object.__setattr__(self, "env_config", config_lib.freeze(self.env_config))
 
     def validate(self) -> None:
-        if self.preset not in PRESETS:
-            raise VnlError(f"unknown preset {self.preset!r}; valid presets are: {', '.join(PRESETS)}")
+        presets.check_name(self.preset)
         env_config = registry.env_config(self.env, self.env_config)  # raises on unknown env or bad overrides
         if self.randomize.enabled and getattr(env_config, "backend", "mjx") != "mjx":
             raise VnlError(
@@ -313,49 +313,6 @@ class TrainConfig:
         return self.ppo.episode_length or self.resolved_env_config().episode_length
 
 
-PRESETS: dict[str, dict[str, Any]] = config_lib.freeze(
-    {
-        # Fits a 2-core CPU: the ant learns to run in about 10 minutes (see README).
-        "cpu": {},
-        # The seed notebooks' GPU hyperparameters (README: GPU).
-        "gpu": {
-            "ppo": {
-                "num_timesteps": 30_000_000,
-                "num_envs": 4096,
-                "batch_size": 1024,
-                "num_minibatches": 32,
-                "num_updates_per_batch": 8,
-                "unroll_length": 10,
-                "discounting": 0.97,
-                "learning_rate": 3e-4,
-                "entropy_cost": 1e-3,
-                "reward_scaling": 0.1,
-                "normalize_observations": True,
-                "num_evals": 20,
-                "num_eval_envs": 128,
-            },
-            "network": {"policy_hidden_layer_sizes": [32, 32, 32, 32]},
-        },
-        # For tests and smoke runs: compiles and finishes in about a minute.
-        "tiny": {
-            "ppo": {
-                "num_timesteps": 4096,
-                "num_envs": 16,
-                "batch_size": 16,
-                "num_minibatches": 4,
-                "num_updates_per_batch": 1,
-                "unroll_length": 8,
-                "num_evals": 2,
-                "num_eval_envs": 4,
-                "episode_length": 32,
-            },
-            "network": {"policy_hidden_layer_sizes": [16, 16], "value_hidden_layer_sizes": [16, 16]},
-            "log": {"video_seconds": 0.5, "video_width": 64, "video_height": 48},
-        },
-    }
-)
-
-
 def default_preset() -> str:
     """`cpu` when JAX has no accelerator, else `gpu`."""
     import jax
@@ -374,11 +331,8 @@ def build(
     file_values = dict(file_values or {})
     if "env" in file_values and file_values["env"] != env:
         raise VnlError(f"the config file is for env {file_values['env']!r} but {env!r} was asked for")
-    preset = preset or file_values.get("preset") or default_preset()
-    if preset not in PRESETS:
-        raise VnlError(f"unknown preset {preset!r}; valid presets are: {', '.join(PRESETS)}")
-    values: dict[str, Any] = config_lib.merge({"env": env, "preset": preset}, PRESETS[preset])
-    values = config_lib.merge(values, _env_preset(env, preset))
+    preset = presets.check_name(preset or file_values.get("preset") or default_preset())
+    values: dict[str, Any] = config_lib.merge({"env": env, "preset": preset}, presets.resolve(env, preset))
     values = config_lib.merge(values, file_values)
     values["preset"] = preset
     for text in assignments or []:
@@ -400,16 +354,6 @@ def _curriculum_length(values: dict[str, Any], explicit: bool) -> dict[str, Any]
     except (TypeError, KeyError, ValueError):
         return values  # malformed stages: `from_dict` names the problem
     return config_lib.merge(values, {"ppo": {"num_timesteps": total}})
-
-
-def _env_preset(env: str, preset: str) -> dict[str, Any]:
-    """The env's own overrides of `preset` (none for unknown envs: `from_dict` reports those)."""
-    from vnl.envs import registry
-
-    try:
-        return registry.entry(env).presets.get(preset, {})
-    except VnlError:
-        return {}
 
 
 def resolved(config: TrainConfig) -> TrainConfig:
@@ -508,8 +452,8 @@ def _extend_last_stage(values: dict[str, Any], saved: TrainConfig) -> bool:
 def task_variant(saved: TrainConfig, assignments: list[str]) -> TrainConfig:
     """`saved` with `env_config.*` assignments (`--set KEY=VALUE` of `vnl eval`, `render` and
     `record`): the trained policy on a variant of its task, e.g. without a training-only
-    termination or on longer gaps. The curriculum is dropped: a trained policy is evaluated on
-    the run's own env_config, its last stage."""
+    termination or on longer gaps. `saved` is the config a checkpoint was trained with
+    (`vnl.train.worlds.trained_config`: a curriculum run's stage); any curriculum is dropped."""
     values = {**config_lib.to_dict(saved), "curriculum": []}
     for text in assignments:
         values = config_lib.merge(values, config_lib.task_variant_assignment(text))

@@ -31,19 +31,20 @@ import numpy as np
 from vnl.errors import VnlError
 from vnl.train.config import TrainConfig
 from vnl.train.loop import LoopState, PPOLoop, epoch_length
+from vnl.train.worlds import Worlds
 
 STAGE_KEY = ".curriculum_stage"  # the stage index stored with a checkpoint's training state
 _STAGE_TAG = 0x53544147  # "STAG": folded into the run's key to reset the envs of a new stage
 
 
 def make_loop(
-    env: Any, config: TrainConfig, training_steps_per_epoch: int | None = None, say: Callable[[str], None] = print
+    worlds: Worlds, config: TrainConfig, training_steps_per_epoch: int | None = None, say: Callable[[str], None] = print
 ) -> PPOLoop | CurriculumLoop:
-    """The PPO loop of a run: `PPOLoop` on `env`, or a `CurriculumLoop` when `config` has stages
-    (the stages build their own envs)."""
+    """The PPO loop of a run: `PPOLoop` on the run's env, or a `CurriculumLoop` over the stages'
+    envs when `config` has stages (`worlds` holds them, built once)."""
     if not config.curriculum:
-        return PPOLoop(env, config, training_steps_per_epoch)
-    return CurriculumLoop(config, training_steps_per_epoch, say)
+        return PPOLoop(worlds.env(0), config, training_steps_per_epoch)
+    return CurriculumLoop(config, worlds, training_steps_per_epoch, say)
 
 
 def stage_ends(config: TrainConfig) -> list[int]:
@@ -61,19 +62,23 @@ class CurriculumLoop:
     """`PPOLoop`'s interface over a curriculum: one `PPOLoop` per stage, sharing the training
     state; `epoch` moves to the next stage when the current one has used its steps.
 
-    All stages' envs are built at construction and must have the same observation and action
-    layout (a `VnlError` names the stage and the sizes); nothing is compiled until `compile` or
-    the first epoch of a stage.
+    All stages' envs (from `worlds`) are taken at construction and must have the same observation
+    and action layout (a `VnlError` names the stage and the sizes); nothing is compiled until
+    `compile` or the first epoch of a stage.
     """
 
     def __init__(
-        self, config: TrainConfig, training_steps_per_epoch: int | None = None, say: Callable[[str], None] = print
+        self,
+        config: TrainConfig,
+        worlds: Worlds,
+        training_steps_per_epoch: int | None = None,
+        say: Callable[[str], None] = print,
     ) -> None:
         self.config = config
         self.say = say
         self.ends = stage_ends(config)
         steps = training_steps_per_epoch or epoch_length(config)
-        self.loops = [PPOLoop(config.stage(i).make_env(), config.stage(i), steps) for i in range(len(self.ends))]
+        self.loops = [PPOLoop(worlds.env(i), config.stage(i), steps) for i in range(len(self.ends))]
         self._check_layouts()
         first = self.loops[0]
         self.stage = 0
@@ -97,6 +102,15 @@ class CurriculumLoop:
     @property
     def current(self) -> PPOLoop:
         return self.loops[self.stage]
+
+    @property
+    def task_env(self) -> Any:
+        """The current stage's env (unwrapped)."""
+        return self.current.task_env
+
+    @property
+    def observation_layout(self) -> list[list[Any]]:
+        return self.current.observation_layout
 
     @property
     def episode_length(self) -> int:

@@ -170,6 +170,7 @@ class PPOLoop:
             randomization_fn=train_models,
             axis_name=AXIS,
         )
+        self.task_env = env  # the unwrapped env being trained
         self.observation_size = env.observation_size
         self.action_size = env.action_size
         self.training_steps_per_epoch = training_steps_per_epoch or epoch_length(config)
@@ -233,6 +234,11 @@ class PPOLoop:
         evaluation = fn(env.mjx_model, jax.random.split(key_eval, self.config.ppo.num_eval_envs))
         self.randomization = randomize.summary(env.mjx_model, train[0], cfg)
         return (lambda _: train), (lambda _: evaluation)
+
+    @property
+    def observation_layout(self) -> list[list[Any]]:
+        """[name, width] of each block of the observation the networks read (meta.json keeps it)."""
+        return [[name, int(width)] for name, width in self.task_env.observation_layout()]
 
     # ---- state ---------------------------------------------------------------------------------
 

@@ -19,7 +19,7 @@ from brax.training.acme import running_statistics
 from brax.training.agents.ppo import networks as ppo_networks
 from brax.training.agents.ppo import networks_vision
 
-from vnl.env import Env
+from vnl.tasks.contract import Env
 from vnl.train.config import NetworkConfig, TrainConfig
 from vnl.train.conv import cpu_convolutions
 

@@ -65,3 +65,20 @@ def progress_line(
         + f"{number(record.get('env_steps_per_sec'), '7,.0f')} steps/s | "
         f"elapsed {fmt_time(elapsed_before + elapsed)} | ETA {eta}"
     )
+
+
+def summary_line(records: list[dict[str, Any]], warm_start: bool, wall_time: float, resumed: bool) -> str:
+    """The line a finished (or stopped) run ends with: eval reward first -> last, forward velocity,
+    and minutes: the run's wall clock (the records' `wall_time`, which continues across resumes,
+    as the progress line's "elapsed"), and after a resume also this session's `wall_time` seconds.
+    `records`: the run's metrics.jsonl records (at least one)."""
+    first, last = records[0], records[-1]
+    vx = last.get("eval/mean_forward_velocity")
+    start = "warm start" if warm_start else "untrained"  # --init-from: the parent's policy
+    return (
+        f"[vnl] eval reward {first.get('eval/episode_reward', float('nan')):.1f} ({start}) -> "
+        f"{last.get('eval/episode_reward', float('nan')):.1f} at step {last['step']:,}"
+        + (f"; mean forward velocity {vx:.2f} m/s" if vx is not None else "")
+        + f"; {float(last.get('wall_time') or wall_time) / 60:.1f} min"
+        + (f" ({wall_time / 60:.1f} since the resume)" if resumed else "")
+    )

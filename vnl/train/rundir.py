@@ -13,11 +13,11 @@ from typing import Any
 import jax
 import numpy as np
 
-from vnl import config as config_lib
-from vnl.env import Env
+from vnl import typed_config as config_lib
 from vnl.errors import VnlError
 from vnl.io import checkpoint
 from vnl.io import metrics as metrics_io
+from vnl.tasks.contract import Env
 from vnl.train import networks
 from vnl.train.config import TrainConfig, resolved
 

@@ -1,6 +1,6 @@
 """One training run in progress: the PPO loop, its run directory, trackers and stop request.
 
-`Session(config, run_dir, restored, say).run(finish)` is what `vnl.train.ppo.train`/`resume` do
+`Session(config, run_dir, restored, say).run(finish)` is what `vnl.train.trainer.train`/`resume` do
 once the run directory is ready. Each epoch: train (`PPOLoop.epoch`), evaluate, write the
 checkpoint (every `log.checkpoint_every` evaluations, and when stopping), append the metrics
 record, print the progress line.
@@ -21,17 +21,19 @@ from typing import Any
 
 import jax
 
-from vnl import config as config_lib
+from vnl import typed_config as config_lib
 from vnl.errors import VnlError
 from vnl.io import checkpoint, tracking
+from vnl.tasks.contract import Env
 from vnl.train import curriculum, distributed, rundir, warm_start
 from vnl.train.config import TrainConfig
 from vnl.train.loop import LoopState
-from vnl.train.progress import make_record, progress_line
+from vnl.train.progress import make_record, progress_line, summary_line
 from vnl.train.signals import StopRequest
+from vnl.train.worlds import Worlds
 
 Say = Callable[[str], None]
-Finish = Callable[[Path], Path | None]
+Finish = Callable[[Path, Env], Path | None]
 Progress = Callable[[dict[str, Any]], None]
 
 
@@ -63,8 +65,9 @@ def _silent(_: str) -> None:
 
 class Session:
     """A run being trained into `run_dir` (created by `rundir.prepare_run_dir`, or resumed from
-    `restored`, or warm-started from `parent`, a `warm_start` parent run). `say` prints progress
-    and `progress(record)` receives each metrics record (process 0 only)."""
+    `restored`, or warm-started from `parent`, a `warm_start` parent run) in the envs of
+    `worlds`. `say` prints progress and `progress(record)` receives each metrics record (process
+    0 only)."""
 
     def __init__(
         self,
@@ -72,6 +75,7 @@ class Session:
         run_dir: Path,
         restored: Restored | None,
         say: Say,
+        worlds: Worlds,
         parent: Any = None,
         progress: Progress | None = None,
     ) -> None:
@@ -79,11 +83,12 @@ class Session:
         self.parent, self.progress = parent, progress
         self.lead = distributed.is_lead()
         self.say = say if self.lead else _silent
-        self.env = config.make_env()
-        distributed.on_lead(lambda: rundir.check_disk_space(run_dir, config, self.env))
+        self.worlds = worlds
+        env = worlds.env(0)
+        distributed.on_lead(lambda: rundir.check_disk_space(run_dir, config, env))
         epoch = restored.meta["training_steps_per_epoch"] if restored else None
-        self.loop = curriculum.make_loop(self.env, config, epoch, self.say)
-        self.episode_seconds = self.loop.episode_length * self.env.dt
+        self.loop = curriculum.make_loop(worlds, config, epoch, self.say)
+        self.episode_seconds = self.loop.episode_length * env.dt
         self.stop = StopRequest(abort_on_second=distributed.process_count() == 1)
         self.records: list[dict[str, Any]] = []
         self.first_step = restored.step if restored else 0
@@ -95,8 +100,9 @@ class Session:
     # ---- the run ---------------------------------------------------------------------------------
 
     def run(self, finish: Finish | None = None) -> TrainResult:
-        """Trains until `ppo.num_timesteps` or a stop request; `finish(run_dir)` runs after a
-        completed run (process 0), and a path it returns (a video) is uploaded to wandb."""
+        """Trains until `ppo.num_timesteps` or a stop request; `finish(run_dir, env)` runs after a
+        completed run (process 0) with the env it ended in, and a path it returns (a video) is
+        uploaded to wandb. Process 0 then draws learning_curve.png and says the run's summary."""
         try:
             with self.stop.installed():
                 distributed.on_lead(self._open_run_dir)
@@ -122,7 +128,20 @@ class Session:
                 f"[vnl] stopped at step {result.steps:,}; continue with `vnl train --resume {self.run_dir}`, or "
                 f"use the checkpoint with `vnl eval {self.run_dir}` / `vnl render {self.run_dir}`."
             )
+        distributed.on_lead(lambda: self._summarize(result.wall_time))
         return result
+
+    def _summarize(self, wall_time: float) -> None:
+        """Process 0: learning_curve.png of the whole run (across resumes) and its summary line."""
+        from vnl.io import metrics as metrics_io
+        from vnl.io import plot
+
+        records = metrics_io.read(self.run_dir / "metrics.jsonl")
+        if not records:
+            return
+        config = self.config
+        plot.learning_curve(records, self.run_dir / "learning_curve.png", title=f"{config.env} ({config.preset})")
+        self.say(summary_line(records, config.init.run is not None, wall_time, resumed=self.restored is not None))
 
     def _say_best(self, last: int) -> None:
         """Process 0: names the kept best checkpoint when it is not the last one."""
@@ -155,7 +174,7 @@ class Session:
             f"[vnl] {'resuming' if restored else 'training'} {config.env} (preset {config.preset}) on "
             f"{loop.n_devices} {jax.default_backend()} device(s)"
             + (f" on each of {loop.process_count} processes" if loop.process_count > 1 else "")
-            + f", physics {self.env.unwrapped.physics.describe()} -> {self.run_dir}"
+            + f", physics {self.worlds.env(0).unwrapped.physics.describe()} -> {self.run_dir}"
             + (f" from step {restored.step:,}" if restored else "")
         )
         for name, stats in loop.randomization.items():
@@ -231,6 +250,8 @@ class Session:
             "training_walltime": self.loop.training_walltime,
             "record": record,
             "wandb_id": tracker.wandb.id if tracker and tracker.wandb else None,
+            # What the networks read, so a warm start checks a grown observation without building this env.
+            "observation_layout": self.loop.observation_layout,
         }
         try:
             with self.stop.critical():
@@ -274,6 +295,6 @@ class Session:
         distributed.on_lead(write)
 
     def _finish(self, finish: Finish, step: int) -> None:
-        video = finish(self.run_dir)
+        video = finish(self.run_dir, self.loop.task_env)
         if video is not None and self.tracker is not None:
             self.tracker.upload_video(video, f"{self.config.env} at step {step:,}")

@@ -31,10 +31,11 @@ from typing import Any
 import numpy as np
 import yaml
 
-from vnl import config as config_lib
+from vnl import typed_config as config_lib
 from vnl.errors import VnlError
 from vnl.io import checkpoint
 from vnl.train.config import TrainConfig, read_config
+from vnl.train.worlds import trained_config
 
 PARAMS = ".training.params."
 NORMALIZER = ".training.normalizer_params."
@@ -54,6 +55,8 @@ class Parent:
       input_rows: set by `check_layout` when the child's observation adds entries: for each of
         the child's inputs, shape (child width,), the parent's input index or -1 for a new one.
       new_inputs: the added entries, as "name (width)".
+      layout: the (name, width) blocks of the observation the parent's networks read, as its
+        checkpoint recorded them (None for checkpoints written before vnl recorded them).
     """
 
     run_dir: Path
@@ -62,6 +65,13 @@ class Parent:
     arrays: dict[str, np.ndarray]
     input_rows: np.ndarray | None = None  # a grown observation: each input's parent index, -1 if new
     new_inputs: tuple[str, ...] = ()
+    layout: list[tuple[str, int]] | None = None
+
+    def observation_layout(self) -> list[tuple[str, int]]:
+        """The parent's observation blocks: as recorded, else from its env (built for this)."""
+        if self.layout is not None:
+            return self.layout
+        return trained_config(self.config, self.run_dir, self.step).make_env().observation_layout()
 
     @property
     def config_hash(self) -> str:
@@ -111,9 +121,11 @@ def load_parent(config: TrainConfig) -> Parent:
         raise VnlError("no parent run: set init.run (--init-from RUN_DIR)")
     run_dir = Path(init.run).absolute()
     parent_config = read_config(run_dir)
-    step, arrays, _ = checkpoint.load_train_state(run_dir, init.step)
+    step, arrays, meta = checkpoint.load_train_state(run_dir, init.step)
     arrays = {k: v for k, v in arrays.items() if k.startswith(".training.")}
-    parent = Parent(run_dir, step, parent_config, arrays)
+    recorded_layout = meta.get("observation_layout")
+    layout = [(str(n), int(w)) for n, w in recorded_layout] if isinstance(recorded_layout, list) else None
+    parent = Parent(run_dir, step, parent_config, arrays, layout=layout)
     _check_networks(parent, config)
     return parent
 
@@ -166,7 +178,7 @@ def check_layout(parent: Parent, env: Any, env_name: str) -> Parent:
     )
     if actions != env.action_size or own < width or isinstance(size, dict):
         raise mismatch
-    rows, new = grown_inputs(parent.config.make_env().observation_layout(), env.observation_layout())
+    rows, new = grown_inputs(parent.observation_layout(), env.observation_layout())
     if rows is None or int((rows >= 0).sum()) != width:
         raise mismatch
     return dataclasses.replace(parent, input_rows=rows, new_inputs=tuple(new))
@@ -261,3 +273,20 @@ def _widen(name: str, theirs: np.ndarray, parent: Parent) -> np.ndarray:
         return theirs
     grown[old] = theirs[rows[old]]
     return grown
+
+
+def planned(config: TrainConfig) -> TrainConfig:
+    """`config` with the parent recorded as `recorded` will record it, read from the parent's
+    config.yaml and checkpoint names alone (no arrays loaded): its absolute path, the step
+    (`init.step`, else the newest checkpoint) and its config hash. For `--print-config`."""
+    init = config.init
+    if init.run is None:
+        return config
+    run_dir = Path(init.run).absolute()
+    parent_config = read_config(run_dir)
+    available = checkpoint.steps(run_dir)
+    step = init.step if init.step is not None else (available[-1] if available else None)
+    if step is None:
+        raise VnlError(f"no checkpoint in {checkpoint.checkpoint_dir(run_dir)} to start from")
+    init = dataclasses.replace(init, run=str(run_dir), step=step, config_hash=config_hash(parent_config))
+    return dataclasses.replace(config, init=init)

@@ -26,8 +26,8 @@ import jax
 import jax.numpy as jp
 import mujoco
 
-from vnl.env import Env, State
 from vnl.errors import VnlError
+from vnl.tasks.contract import Env, State
 from vnl.vision.camera import Camera, camera_names
 
 CHANNELS = {"rgb": 3, "depth": 1, "rgbd": 4}

@@ -25,7 +25,7 @@ class FrozenDict(dict):
     (`TrainConfig.env_config`, registry presets), so no one can mutate a shared default."""
 
     def _refuse(self, *args: Any, **kwargs: Any) -> None:
-        raise TypeError("config mappings are frozen; build a new config with vnl.config.override/merge")
+        raise TypeError("config mappings are frozen; build a new config with vnl.typed_config.override/merge")
 
     __setitem__ = __delitem__ = clear = pop = popitem = setdefault = update = _refuse  # type: ignore[assignment]
     __ior__ = _refuse  # type: ignore[assignment]
@@ -243,13 +243,18 @@ def _fix_yaml_floats(node: Any) -> Any:
     return node
 
 
+def to_yaml(obj: Any) -> str:
+    """A config (dataclass or dict) as the YAML text a run's config.yaml holds."""
+    return yaml.safe_dump(to_dict(obj), sort_keys=False)
+
+
 def dump_yaml(obj: Any, path: str) -> None:
-    """Writes a config (dataclass or dict) as YAML, atomically (temp file + rename)."""
+    """Writes a config (dataclass or dict) as YAML (`to_yaml`), atomically (temp file + rename)."""
     import os
 
     tmp = f"{path}.tmp"
     with open(tmp, "w") as f:
-        yaml.safe_dump(to_dict(obj), f, sort_keys=False)
+        f.write(to_yaml(obj))
     os.replace(tmp, path)
 
 

@@ -22,6 +22,14 @@ from vnl import physics as physics_lib
 
 Observation = jax.Array | dict[str, jax.Array]
 
+_world_builds = 0
+
+
+def world_builds() -> int:
+    """How many worlds (compiled models with their physics) this process has built: each `Env`
+    construction counts one. A run builds each of its stages' worlds once (`vnl.train.worlds`)."""
+    return _world_builds
+
 
 @struct.dataclass
 class State:
@@ -56,6 +64,8 @@ class Env(abc.ABC):
     def __init__(
         self, config: Any, mj_model: mujoco.MjModel, n_substeps: int, impl: str = "jax", threads: int | None = None
     ) -> None:
+        global _world_builds
+        _world_builds += 1
         self._config = config
         self._mj_model = mj_model
         # MJX places the model on `jax.devices()[0]`, which in a multi-process run belongs to

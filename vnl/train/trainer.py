@@ -9,6 +9,7 @@ stopped. The pieces, one concern per module:
 - `vnl.train.rundir`: the run directory (created and checked before compiling; put back in
   order on resume);
 - `vnl.train.session`: the run in progress (evaluate, checkpoint, metrics, progress);
+- `vnl.train.worlds`: the run's envs (one per curriculum stage), each built once;
 - `vnl.train.signals`: Ctrl-C/SIGTERM stop at the next evaluation, never inside a write;
 - `vnl.train.distributed`: several processes, process 0 writing.
 """
@@ -19,7 +20,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from vnl import config as config_lib
+from vnl import typed_config as config_lib
 from vnl.envs.wrappers import wrap_for_training
 from vnl.errors import VnlError
 from vnl.io import checkpoint
@@ -27,6 +28,7 @@ from vnl.io import metrics as metrics_io
 from vnl.train import distributed, loop, networks, rundir, warm_start
 from vnl.train.config import TrainConfig, read_config, resume_config
 from vnl.train.session import Finish, Progress, Restored, Session, TrainResult
+from vnl.train.worlds import Worlds
 
 __all__ = ["TrainResult", "brax_kwargs", "resume", "resume_config", "train"]
 
@@ -73,22 +75,32 @@ def train(
 ) -> TrainResult:
     """Trains `config.env` with Brax PPO (`vnl.train.loop`), writing everything into `run_dir`.
 
-    Returns when training ends or after a stop was requested (SIGINT/SIGTERM). `finish(run_dir)`
-    runs after a completed run, while the trackers are open; a path it returns (a video) is
-    uploaded to wandb when enabled. `progress(record)` is called with each metrics record (e.g. to
-    move a notebook's progress bar). With `config.init.run`, the run starts from that run's
-    networks (`vnl.train.warm_start`); its layout is checked before anything is written.
+    Returns when training ends or after a stop was requested (SIGINT/SIGTERM). `finish(run_dir,
+    env)` runs after a completed run, while the trackers are open, with the env the run ended in;
+    a path it returns (a video) is uploaded to wandb when enabled. `progress(record)` is called
+    with each metrics record (e.g. to move a notebook's progress bar). With `config.init.run`, the
+    run starts from that run's networks (`vnl.train.warm_start`); its layout is checked before
+    anything is written. Each world (each curriculum stage's env) is built once (`Worlds`).
     """
     run_dir = Path(run_dir)
     loop.check_devices(config)
+    worlds = Worlds(config, say if distributed.is_lead() else None)
+    _check_video_camera(config, worlds)
     parent = None
     if config.init.run is not None:
         parent = warm_start.load_parent(config)
-        first = config.stage(0) if config.curriculum else config  # the env the parent's networks start in
-        parent = warm_start.check_layout(parent, first.make_env(), config.env)
+        parent = warm_start.check_layout(parent, worlds.env(0), config.env)  # the env the parent starts in
         config = warm_start.recorded(config, parent)
     distributed.on_lead(lambda: rundir.prepare_run_dir(run_dir, config))
-    return Session(config, run_dir, None, say, parent=parent, progress=progress).run(finish)
+    return Session(config, run_dir, None, say, worlds, parent=parent, progress=progress).run(finish)
+
+
+def _check_video_camera(config: TrainConfig, worlds: Worlds) -> None:
+    """An unknown `log.video_camera` is an error before training, not after it."""
+    if config.log.video:
+        from vnl.io import video
+
+        video.resolve_camera(worlds.last().mj_model, config.log.video_camera)
 
 
 def resume(
@@ -113,6 +125,8 @@ def resume(
     step, arrays, meta = checkpoint.load_train_state(run_dir, from_step)
     if (run_dir / "metrics.jsonl").exists():
         metrics_io.read(run_dir / "metrics.jsonl")  # a damaged file is an error now, not after compiling
+    worlds = Worlds(config, say if distributed.is_lead() else None)
+    _check_video_camera(config, worlds)
     if config != saved:
         distributed.on_lead(lambda: config_lib.dump_yaml(config, str(run_dir / "config.yaml")))
     p = config.ppo
@@ -121,4 +135,4 @@ def resume(
             f"[vnl] the learning rate reaches ppo.learning_rate_final ({p.learning_rate_final:g}) at "
             f"{p.learning_rate_decay_steps:,} steps and stays there to {p.num_timesteps:,}"
         )
-    return Session(config, run_dir, Restored(step, arrays, meta), say, progress=progress).run(finish)
+    return Session(config, run_dir, Restored(step, arrays, meta), say, worlds, progress=progress).run(finish)

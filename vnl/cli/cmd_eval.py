@@ -1,0 +1,59 @@
+"""`vnl eval RUN_DIR`: a trained policy on new episodes, with the task's measures."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+from vnl.cli import checks, options
+
+
+def add(sub: Any) -> None:
+    p = options.command(sub, "eval", "evaluate a trained run", run, check)
+    p.add_argument("run_dir")
+    p.add_argument("--episodes", type=options.POSITIVE, default=16)
+    p.add_argument("--steps", type=options.POSITIVE, help="max steps per episode (default: episode length)")
+    options.checkpoint_flag(p)
+    p.add_argument("--seed", type=options.NON_NEGATIVE, default=0)
+    p.add_argument("--out", help="JSON file (default <run_dir>/eval.json)")
+    options.task_variant_flag(p)
+    options.cache_flags(p)
+
+
+def check(args: argparse.Namespace) -> None:
+    checks.run_dir(args.run_dir)
+    checks.task_variants(args.set)
+    checks.output_file(args.out)
+
+
+def run(args: argparse.Namespace) -> int:
+    import jax
+
+    from vnl.policy import load_run
+    from vnl.rollout import rollout, summarize
+
+    run = load_run(args.run_dir, step=checks.chosen_step(args.run_dir, args.step), env_set=args.set)
+    steps = args.steps or run.config.episode_length()
+    r = rollout(run.env, run.policy, jax.random.PRNGKey(args.seed), args.episodes, steps)
+    summary = {
+        "run_dir": str(run.run_dir),
+        "env": run.config.env,
+        "checkpoint_step": run.step,
+        "max_steps": steps,
+        "env_set": args.set,
+        **summarize(r, run.env.dt),
+    }
+    out = Path(args.out) if args.out else run.run_dir / "eval.json"
+    out.write_text(json.dumps(summary, indent=2))
+    variant = f" with {' '.join(args.set)}" if args.set else ""
+    print(f"{run.config.env}{variant} @ step {run.step:,}: {args.episodes} episodes of up to {steps} steps")
+    print(f"{'quantity':<28} {'mean':>12} {'std':>12}")
+    for k, v in summary.items():
+        if isinstance(v, dict):
+            print(f"{k:<28} {v['mean']:>12.3f} {v['std']:>12.3f}")
+    ended = round(summary["ended_early"]["mean"] * args.episodes)
+    print(f"{ended} of {args.episodes} episodes ended before step {steps} (ended_early)")
+    print(f"written to {out}")
+    return 0
