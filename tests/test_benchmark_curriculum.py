@@ -11,7 +11,7 @@ import yaml
 from vnl.io import checkpoint
 from vnl.io import metrics as metrics_io
 
-pytestmark = pytest.mark.xdist_group("benchmark_curriculum")
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("benchmark_curriculum")]
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-pytestmark = pytest.mark.xdist_group("benchmark_learning")
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("benchmark_learning")]
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -42,6 +42,7 @@ def trained_run(tmp_path_factory):
     return out, p.stdout
 
 
+@pytest.mark.slow
 def test_train_writes_a_complete_run_directory(trained_run):
     out, stdout = trained_run
     assert (out / "config.yaml").is_file()
@@ -57,6 +58,7 @@ def test_train_writes_a_complete_run_directory(trained_run):
     assert np.abs(video[-1].astype(int) - video[0].astype(int)).mean() > 0.1
 
 
+@pytest.mark.slow
 def test_eval_prints_table_and_writes_json(trained_run, tmp_path):
     out, _ = trained_run
     p = run("eval", out, "--episodes", "3", "--steps", "20", "--out", tmp_path / "e.json")
@@ -78,6 +80,7 @@ def test_eval_prints_table_and_writes_json(trained_run, tmp_path):
     assert summary["env_set"] == []
 
 
+@pytest.mark.slow
 def test_eval_on_a_variant_of_the_task(trained_run, tmp_path):
     """`--set env_config.*` evaluates the run's policy on a variant of its task (here without the
     healthy bonus: that reward term is 0, the others as before); other keys, and a variant whose
@@ -135,6 +138,7 @@ def test_eval_on_a_variant_of_the_task(trained_run, tmp_path):
     assert viewer.recording_env(ds).config.healthy_reward == 0.0 != read_config(out).make_env().config.healthy_reward
 
 
+@pytest.mark.slow
 def test_step_best_loads_the_checkpoint_that_scored_highest(trained_run, tmp_path):
     out, stdout = trained_run
     kept = set(checkpoint.steps(out))
@@ -156,6 +160,7 @@ def test_step_best_loads_the_checkpoint_that_scored_highest(trained_run, tmp_pat
     assert p.returncode == 2 and "vnl: error:" in p.stderr and "--step" in p.stderr
 
 
+@pytest.mark.slow
 def test_render_any_named_camera(trained_run, tmp_path):
     out, _ = trained_run
     p = run("render", "--list-cameras", out)
@@ -179,6 +184,7 @@ def test_render_any_named_camera(trained_run, tmp_path):
     assert video.shape[1:] == (64, 96, 3) and video.shape[0] >= 2
 
 
+@pytest.mark.slow
 def test_sigterm_stops_cleanly_and_keeps_checkpoint(tmp_path):
     out = tmp_path / "interrupted"
     proc = subprocess.Popen(
@@ -247,6 +253,7 @@ def test_user_errors_are_one_line_exit_2(argv, words, capsys):
         assert w in err, (w, err)
 
 
+@pytest.mark.slow
 def test_missing_checkpoint_and_unknown_camera(trained_run, tmp_path, capsys):
     out, _ = trained_run
     empty = tmp_path / "empty"

@@ -19,7 +19,7 @@ import pytest
 from vnl import typed_config as config_lib
 from vnl.train import config as train_config
 
-pytestmark = pytest.mark.xdist_group("cli_fuzz")
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("cli_fuzz")]
 
 ROOT = Path(__file__).resolve().parents[1]
 COMMANDS = ["list", "train", "eval", "render", "plot", "record", "analyze", "compare", "view"]

@@ -14,7 +14,7 @@ from vnl.io import metrics as metrics_io
 from vnl.train import config as train_config
 from vnl.train import trainer, warm_start
 
-pytestmark = [pytest.mark.xdist_group("curriculum"), pytest.mark.usefixtures("point_envs")]
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("curriculum"), pytest.mark.usefixtures("point_envs")]
 
 # Tiny preset: 16 envs × 4 minibatches × 8 steps = 512 env steps per training step.
 K = 1024

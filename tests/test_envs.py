@@ -53,9 +53,16 @@ def _pick(data):
 
 def by_env(names, impls=("jax",)):
     """(name, impl) parameters grouped per env and physics for pytest-xdist (`--dist loadgroup`):
-    one compile per worker. MuJoCo C physics (impl c) compiles nothing of MuJoCo: cheap to add."""
+    one compile per worker. MuJoCo C physics (impl c) compiles nothing of MuJoCo: cheap to add, and
+    in the fast tier; MJX (impl jax) compiles the world's physics, minutes for the rat: slow."""
     return [
-        pytest.param(n, i, marks=pytest.mark.xdist_group(n if i == "jax" else f"{n}-{i}"), id=f"{n}-{i}")
+        pytest.param(
+            n,
+            i,
+            marks=[pytest.mark.xdist_group(n if i == "jax" else f"{n}-{i}")]
+            + ([pytest.mark.slow] if i == "jax" else []),
+            id=f"{n}-{i}",
+        )
         for n in names
         for i in impls
     ]
@@ -107,6 +114,20 @@ def _random_rollout(name, impl):
     return jax.device_get(go(jax.random.PRNGKey(0)))
 
 
+@pytest.mark.usefixtures("point_envs")
+def test_the_tiny_test_env_resets_and_steps_on_c_physics():
+    """tests/tiny_env.py's point mass (the env the training tests use): a jitted reset and steps
+    pushing towards its target move it there and earn more (less negative) reward."""
+    e = registry.make("test_point", impl="c")
+    s = jax.jit(e.reset)(jax.random.PRNGKey(0))
+    assert s.obs.shape == (e.observation_size,) == (2,)
+    step = jax.jit(e.step)
+    first = step(s, jp.ones(1))
+    for _ in range(20):
+        s = step(s, jp.ones(1))
+    assert float(s.data.qpos[0]) > float(first.data.qpos[0]) and float(s.reward) > float(first.reward)
+
+
 @pytest.mark.parametrize("name,impl", by_env(NAMES, BOTH))
 def test_reset_step_shapes_and_finiteness(name, impl):
     e = env(name, impl)
@@ -131,6 +152,7 @@ def test_reset_step_shapes_and_finiteness(name, impl):
     assert sum(w for _, w in e.observation_layout()) == e.observation_size
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name,impl", by_env(RUN_NAMES, BOTH))
 def test_reward_terms_match_independent_recomputation(name, impl):
     e = env(name, impl)
@@ -170,6 +192,7 @@ def _is_descendant(m, body, root):
     return root == 0
 
 
+@pytest.mark.slow
 @pytest.mark.xdist_group("humanoid_run")
 def test_humanoid_observation_is_the_notebooks_layout():
     e = env("humanoid_run")
@@ -194,6 +217,7 @@ def test_humanoid_observation_is_the_notebooks_layout():
     assert sum(w for _, w in layout) == e.observation_size
 
 
+@pytest.mark.slow
 @pytest.mark.xdist_group("ant_run")
 def test_bodies_resolved_by_name():
     e = env("ant_run")
@@ -202,6 +226,7 @@ def test_bodies_resolved_by_name():
     assert h.mj_model.body(h.root_body_id).name == "torso"
 
 
+@pytest.mark.slow
 @pytest.mark.xdist_group("ant_run")
 def test_bad_actions_never_reach_physics():
     e = env("ant_run")
@@ -214,6 +239,7 @@ def test_bad_actions_never_reach_physics():
         assert float(n.metrics["physics_nan"]) == 0.0
 
 
+@pytest.mark.slow
 @pytest.mark.xdist_group("ant_run")
 def test_physics_blow_up_ends_episode_without_nan():
     e = env("ant_run")
@@ -228,6 +254,7 @@ def test_physics_blow_up_ends_episode_without_nan():
     assert np.isfinite(np.asarray(n.data.qpos)).all()
 
 
+@pytest.mark.slow
 @pytest.mark.xdist_group("ant_run")
 def test_ant_contacts_and_rest_height():
     """The ant stands on the floor at rest (no sinking) with the compiled solver settings."""
@@ -262,6 +289,7 @@ def _mj_data(e, traj, t, b):
 SAMPLE_T = (0, 1, 10, 50, 99, 300, 999)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name,impl", by_env(["rodent_run_gaps", "ant_run_gaps"], BOTH))
 def test_run_gaps_reward_equals_dm_control_formula(name, impl):
     from dm_control.utils import rewards as dmc_rewards
@@ -281,6 +309,7 @@ def test_run_gaps_reward_equals_dm_control_formula(name, impl):
             assert traj.done[t, b] == max(float(low), traj.metrics["physics_nan"][t, b])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name,impl", by_env(["rodent_escape_bowl", "ant_escape_bowl"], BOTH))
 def test_escape_reward_equals_dm_control_formula(name, impl):
     from dm_control.utils import rewards as dmc_rewards
@@ -309,6 +338,7 @@ def test_escape_reward_equals_dm_control_formula(name, impl):
     assert m.hfield_nrow[0] == e.config.bowl.nrow
 
 
+@pytest.mark.slow
 @pytest.mark.xdist_group("rodent_run")
 def test_rodent_stands_on_the_floor_with_zero_action():
     """After 2 s of zero action the rat's soles are within a few mm of the floor (no sinking,
@@ -332,6 +362,7 @@ def test_rodent_stands_on_the_floor_with_zero_action():
     assert traj.done[: t + 1, b].sum() == 0
 
 
+@pytest.mark.slow
 @pytest.mark.xdist_group("rodent_run_gaps")
 def test_gaps_layout_redrawn_per_reset_and_in_the_model():
     from vnl.arenas import gaps
@@ -350,6 +381,7 @@ def test_gaps_layout_redrawn_per_reset_and_in_the_model():
     assert np.isclose(z, top, rtol=0, atol=1e-6).any()
 
 
+@pytest.mark.slow
 @pytest.mark.xdist_group("rodent_run_gaps")
 def test_walker_falling_into_a_gap_is_detected():
     """The rat placed over a 0.5 m gap falls in (MuJoCo C) and `failed` says so."""
@@ -393,6 +425,7 @@ def _ant_settled_at(m: mujoco.MjModel, p: gaps.GapsParams, x: float, seconds: fl
     return d
 
 
+@pytest.mark.slow
 def test_ant_foot_in_a_gap_fails_with_terminate_foot_below():
     """`feet_lowest` is the lowest point of the feet's capsules: an ant settled on a platform (1 s of
     MuJoCo C, no action) rests its feet on the top (z = 0, within the contacts' 5-mm penetration);
@@ -411,6 +444,7 @@ def test_ant_foot_in_a_gap_fails_with_terminate_foot_below():
         vnl.make("ant_run_gaps", terminate_foot_below=float("inf"))
 
 
+@pytest.mark.slow
 def test_ant_wedged_in_a_gap_fails_with_terminate_root_below():
     """The ant's torso (a sphere of radius 0.25 m) over a 0.45-m gap wedges between the platforms'
     edges with its centre below 0.2 m, where its feet stay above `terminate_at_height`: a failure
@@ -441,6 +475,7 @@ def test_ant_wedged_in_a_gap_fails_with_terminate_root_below():
         vnl.make("ant_run_gaps", terminate_root_below=float("nan"))
 
 
+@pytest.mark.slow
 def test_run_gaps_tilt_check_and_healthy_bonus():
     """`healthy_min_upright` fails a rat tilted past it (60° fails at 45°, 30° does not; neither
     without the check), and `healthy_reward` is paid on every step that does not fail, on top of
@@ -482,6 +517,7 @@ def test_run_gaps_tilt_check_and_healthy_bonus():
         vnl.make("rodent_run", healthy_min_upright=1.5)
 
 
+@pytest.mark.slow
 @pytest.mark.xdist_group("user_walker")
 def test_user_walker_file_errors_name_the_problem(tmp_path):
     bad = tmp_path / "bad.xml"
@@ -496,6 +532,7 @@ def test_user_walker_file_errors_name_the_problem(tmp_path):
         vnl.make("run", walker_xml=str(good))
 
 
+@pytest.mark.slow
 @pytest.mark.xdist_group("user_walker")
 def test_user_walker_file_runs(tmp_path):
     """A user's MJCF (with its own floor and free joint, both replaced) runs in the run task."""
@@ -525,6 +562,7 @@ def test_user_walker_file_runs(tmp_path):
     assert [n for n, _ in e.observation_layout()][:2] == ["joints_pos", "joints_vel"]
 
 
+@pytest.mark.slow
 @pytest.mark.xdist_group("user_walker")
 def test_contact_termination_on_a_non_foot_contact():
     """With `contact_termination`, the rat lying on a platform (torso contact) fails; upright on
@@ -572,6 +610,7 @@ MAX_TOL = (0.6, 2.5, 0.05)
 @pytest.mark.parametrize(
     "name,impl", by_env(["ant_run", "rodent_run", "rodent_run_gaps", "rodent_escape_bowl", "humanoid_run"])
 )
+@pytest.mark.slow
 def test_c_and_mjx_agree_from_the_same_states(name, impl):
     """One control step of MuJoCo C from states of MJX's rollout (mid-episode: feet on the floor,
     on the gaps' moving platforms, on the bowl's heightfield) lands where MJX's next step did,
@@ -598,6 +637,7 @@ def test_c_and_mjx_agree_from_the_same_states(name, impl):
         assert median < median_tol and worst < max_tol, measured
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name,impl", by_env(["rodent_run_gaps", "ant_run_gaps"]))
 def test_mjx_corridor_finds_every_contact_mujoco_c_finds(name, impl):
     """Every walker geom that MuJoCo C finds penetrating the platforms (by more than 1 mm), MJX
@@ -636,6 +676,7 @@ def test_mjx_corridor_finds_every_contact_mujoco_c_finds(name, impl):
     assert checked >= 50  # the walker was on the platforms
 
 
+@pytest.mark.slow
 @pytest.mark.xdist_group("ant_run_gaps-c")
 def test_the_ant_observes_the_corridors_direction_and_its_offset_from_the_centre_line():
     """`observe_corridor` (ant_run_gaps' default): the last 4 observations are the world x-axis in
@@ -656,6 +697,7 @@ def test_the_ant_observes_the_corridors_direction_and_its_offset_from_the_centre
     assert state.obs.shape == (env.observation_size,)
 
 
+@pytest.mark.slow
 def test_ground_scan_reads_platforms_and_gaps_ahead_from_the_episodes_layout():
     """`ground_scan`: 1 where the corridor floor d metres ahead of the root is a platform, 0 over a
     gap or past the corridor's end; checked against the layout's (start, end) intervals at 601
@@ -676,6 +718,7 @@ def test_ground_scan_reads_platforms_and_gaps_ahead_from_the_episodes_layout():
         vnl.make("ant_run_gaps", ground_scan=(float("nan"),))
 
 
+@pytest.mark.slow
 def test_terrain_scan_reads_the_bowls_height_under_points_around_the_walker():
     """`terrain_scan`: the root's height above the ground at (forward, left) points in its heading
     frame, checked against MuJoCo's own ray cast down onto the arena alone (`mj_ray`) with the walker
@@ -715,6 +758,7 @@ def test_terrain_scan_reads_the_bowls_height_under_points_around_the_walker():
         vnl.make("ant_escape_bowl", terrain_scan=((0.1, float("nan")),))
 
 
+@pytest.mark.slow
 @pytest.mark.xdist_group("ant_run-c")
 def test_forward_velocity_cap_clips_the_forward_reward_only():
     """With `forward_velocity_cap` c the forward term is w·min(v_x, c): steps faster than c earn
@@ -738,6 +782,7 @@ def test_forward_velocity_cap_clips_the_forward_reward_only():
         vnl.make("ant_run", impl="c", forward_velocity_cap=-1.0)
 
 
+@pytest.mark.slow
 @pytest.mark.xdist_group("ant_run-c")
 def test_the_clock_is_the_phase_of_the_episode_s_time_and_restarts_with_each_episode():
     """`clock_period` T appends (sin, cos)(2π t / T), t the episode's time: (0, 1) at reset, the
@@ -772,6 +817,7 @@ def test_the_clock_is_the_phase_of_the_episode_s_time_and_restarts_with_each_epi
         vnl.make("ant_run", clock_period=env.dt)
 
 
+@pytest.mark.slow
 @pytest.mark.xdist_group("rodent_run-c")
 def test_the_rat_observes_its_heading_and_the_ant_can():
     """`observe_heading` (rodent_run's default): `heading` is the world x-axis (the rewarded
@@ -812,6 +858,7 @@ def test_the_rat_observes_its_heading_and_the_ant_can():
         np.testing.assert_allclose(s0.obs[start : start + 3], s0.data.xmat[other._root][0], atol=1e-6)
 
 
+@pytest.mark.slow
 @pytest.mark.xdist_group("rodent_run-c")
 def test_foot_slip_cost_charges_a_sliding_stance_foot_and_nothing_else():
     """`foot_slip_cost_weight`: a settled rat slid 1 cm sideways over one 20-ms control step moves
@@ -839,6 +886,7 @@ def test_foot_slip_cost_charges_a_sliding_stance_foot_and_nothing_else():
         vnl.make("rodent_run", impl="c", foot_slip_cost_weight=-1.0)
 
 
+@pytest.mark.slow
 def test_bowl_slope_profile_smooth_peaks_at_the_formula_and_bumps_steepen_it():
     smooth = bowl.slope_profile(bowl.BowlParams(smoothness=1.0))
     expected = np.degrees(np.arctan(np.pi * 0.5 / 6.0))  # 14.7°: dh/dr of 0.5·(1 - cos(2πr/6))/2
@@ -855,6 +903,7 @@ def test_bowl_slope_profile_smooth_peaks_at_the_formula_and_bumps_steepen_it():
         bowl.slope_profile(bowl.BowlParams(), ring=0.0)
 
 
+@pytest.mark.slow
 @pytest.mark.xdist_group("ant_run-c")
 def test_incline_tilts_gravity_so_the_floor_rises_along_x():
     flat, tilted = env("ant_run", "c"), vnl.make("ant_run", impl="c", incline=20.0)  # flat: the shared one

@@ -20,7 +20,7 @@ import pytest
 from vnl.io import checkpoint
 from vnl.io import metrics as metrics_io
 
-pytestmark = pytest.mark.xdist_group("interruptions")
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("interruptions")]
 
 TESTS = Path(__file__).resolve().parent
 SCRIPT = """

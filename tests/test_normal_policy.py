@@ -18,7 +18,7 @@ from vnl.train import trainer, warm_start
 from vnl.train.loop import PPOLoop
 from vnl.train.networks import make_network
 
-pytestmark = [pytest.mark.xdist_group("normal_policy"), pytest.mark.usefixtures("point_envs")]
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("normal_policy"), pytest.mark.usefixtures("point_envs")]
 
 NORMAL = {"distribution_type": "normal", "noise_std_type": "log", "init_noise_std": 0.5}
 # tests/test_train.py's PPO settings and Brax's default sizes (with a 2x32 policy and a 2x64 value

@@ -7,7 +7,7 @@ import nbformat
 import pytest
 from nbclient import NotebookClient
 
-pytestmark = pytest.mark.xdist_group("notebook")
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("notebook")]
 
 ROOT = Path(__file__).resolve().parents[1]
 

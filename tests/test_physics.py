@@ -101,6 +101,7 @@ def _mj_data(m, data, b):
     return d
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", by_env(C_ENVS, "-c"))
 def test_c_step_equals_mujoco_stepping_bit_for_bit(name):
     """One env step = `n_substeps` × mj_step + mj_step1 (positions and velocities of the new
@@ -142,6 +143,7 @@ def test_c_forward_equals_mj_forward():
 # --- parity with MJX ---------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["ant_run", "rodent_run"])
 def test_c_and_mjx_agree_without_contacts(name):
     # (From mid-episode states with contacts: tests/test_envs.py, which has MJX's rollouts.)
@@ -172,6 +174,7 @@ def test_c_and_mjx_agree_without_contacts(name):
 # --- the NaN guard, threads, per-env fields ------------------------------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.xdist_group("ant_run-c")
 def test_a_blow_up_ends_only_that_envs_episode():
     """An env whose velocities blow up (MuJoCo's bad-qvel check) keeps its last state and ends its
@@ -221,6 +224,7 @@ def test_bad_impl_and_threads_are_one_line_errors():
     assert physics.resolve_threads(None) == physics.available_cores() >= 1
 
 
+@pytest.mark.slow
 def test_per_env_masses_and_gains_reach_mujoco():
     """With randomized masses (MuJoCo's derived constants recomputed) and gains, each env steps as
     MuJoCo does with that env's model."""
@@ -257,6 +261,7 @@ def test_per_env_masses_and_gains_reach_mujoco():
 # --- vision, presets, the compilation cache --------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_in_graph_camera_sees_c_physics_states():
     env = vnl.make("find_target", impl="c", vision={"width": 16, "height": 16})
     s0 = jax.jit(env.reset)(jax.random.PRNGKey(0))
@@ -302,6 +307,7 @@ CACHE_SCRIPT = textwrap.dedent(
 )
 
 
+@pytest.mark.slow
 @pytest.mark.xdist_group("rodent_run-c")
 def test_second_process_loads_the_c_physics_program_from_the_cache(tmp_path):
     script = CACHE_SCRIPT.format(cache=str(tmp_path / "cache"))
@@ -336,6 +342,7 @@ QUIET_SCRIPT = textwrap.dedent(
 )
 
 
+@pytest.mark.slow
 def test_the_cli_keeps_xla_s_cache_load_warnings_off_the_console(tmp_path):
     """jaxlib 0.8's XLA:CPU logs multi-kilobyte ERROR lines (a false SIGILL warning) whenever it
     loads a program from the persistent cache; the CLI's process setup keeps them off the console,
@@ -376,6 +383,7 @@ def _vnl(*args, env=None, timeout=900):
 # Exact resume with C physics (and a changed thread count): tests/test_research.py, on ant_run.
 
 
+@pytest.mark.slow
 def test_trains_with_c_physics_on_two_devices(tmp_path):
     env = {**__import__("os").environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
     p = _vnl("train", "ant_run", *TINY_C, "--out", tmp_path / "run", env=env)

@@ -27,7 +27,7 @@ from vnl.train import config as train_config
 from vnl.train import trainer
 from vnl.train.loop import PPOLoop
 
-pytestmark = [pytest.mark.xdist_group("research"), pytest.mark.usefixtures("point_envs")]
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("research"), pytest.mark.usefixtures("point_envs")]
 
 ROOT = Path(__file__).resolve().parents[1]
 # Tiny preset: 16 envs × 4 minibatches × 8 steps = 512 env steps per training step.

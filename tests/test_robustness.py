@@ -29,7 +29,7 @@ from vnl.train import rundir, trainer
 from vnl.train.config import read_config
 from vnl.train.loop import PPOLoop
 
-pytestmark = [pytest.mark.xdist_group("robustness"), pytest.mark.usefixtures("point_envs")]
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("robustness"), pytest.mark.usefixtures("point_envs")]
 
 ROOT = Path(__file__).resolve().parents[1]
 QUIET = {"log": {"video": False, "progress": False}}

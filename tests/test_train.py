@@ -16,7 +16,7 @@ from vnl.policy import load_run, make_policy_fn
 from vnl.train import config as train_config
 from vnl.train import trainer
 
-pytestmark = [pytest.mark.xdist_group("train"), pytest.mark.usefixtures("point_envs")]
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("train"), pytest.mark.usefixtures("point_envs")]
 
 SETTINGS = {
     "ppo": {

@@ -18,7 +18,7 @@ from vnl.envs import registry
 from vnl.policy import LoadedRun, make_network, make_policy_fn
 from vnl.train import config as train_config
 
-pytestmark = pytest.mark.xdist_group("viewer")
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("viewer")]
 
 
 def untrained_run(run_dir: Path, env_name: str) -> LoadedRun:

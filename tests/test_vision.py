@@ -15,7 +15,7 @@ from vnl.errors import VnlError
 from vnl.tasks.base import spawn_height
 from vnl.vision.camera import FAR, Camera
 
-pytestmark = pytest.mark.xdist_group("vision")
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("vision")]
 
 # Every ray-cast primitive, tilted, on a floor; a free box that can be moved; a hidden-group box.
 SCENE = """
