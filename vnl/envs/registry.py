@@ -22,32 +22,15 @@ class Entry:
     description: str
 
 
+_BRAX = "physics selectable: MJX or Brax's generalized/positional/spring"
 _REGISTRY: dict[str, Entry] = {
     "ant_run": Entry(
-        run.Run,
-        run.ANT_RUN,
-        "dm_control's ant runs forward on a flat floor (cheap: the CPU demo animal).",
+        run.Run, run.ANT_RUN, "dm_control's ant runs forward on a flat floor (cheap: the CPU demo animal)."
     ),
-    "humanoid_run": Entry(
-        run.Run,
-        run.HUMANOID_RUN,
-        "The notebooks' MJX humanoid runs forward on a flat floor.",
-    ),
-    "brax_humanoid_run": Entry(
-        run.Run,
-        run.BRAX_HUMANOID_RUN,
-        "Brax's humanoid runs forward; physics selectable: MJX or Brax's generalized/positional/spring.",
-    ),
-    "brax_ant_run": Entry(
-        run.Run,
-        run.BRAX_ANT_RUN,
-        "Brax's ant runs forward; physics selectable: MJX or Brax's generalized/positional/spring.",
-    ),
-    "rodent_run": Entry(
-        run.Run,
-        run.RODENT_RUN,
-        "dm_control's rat runs forward on a flat floor.",
-    ),
+    "humanoid_run": Entry(run.Run, run.HUMANOID_RUN, "The notebooks' MJX humanoid runs forward on a flat floor."),
+    "brax_humanoid_run": Entry(run.Run, run.BRAX_HUMANOID_RUN, f"Brax's humanoid runs forward; {_BRAX}."),
+    "brax_ant_run": Entry(run.Run, run.BRAX_ANT_RUN, f"Brax's ant runs forward; {_BRAX}."),
+    "rodent_run": Entry(run.Run, run.RODENT_RUN, "dm_control's rat runs forward on a flat floor."),
     "rodent_run_gaps": Entry(
         run_gaps.RunGaps,
         run_gaps.RODENT_RUN_GAPS,
@@ -64,9 +47,7 @@ _REGISTRY: dict[str, Entry] = {
         "The ant runs through a corridor of platforms and gaps scaled to its size.",
     ),
     "ant_escape_bowl": Entry(
-        escape_bowl.EscapeBowl,
-        escape_bowl.ANT_ESCAPE_BOWL,
-        "The ant climbs out of the bumpy bowl.",
+        escape_bowl.EscapeBowl, escape_bowl.ANT_ESCAPE_BOWL, "The ant climbs out of the bumpy bowl."
     ),
     "find_target": Entry(
         find_target.FindTarget,
@@ -74,20 +55,12 @@ _REGISTRY: dict[str, Entry] = {
         "A ball rolls to a red target placed at random; only its egocentric camera can see it (train with --vision).",
     ),
     # Tasks for any walker: set walker=ant|rodent or walker_xml=path/to/model.xml, root_body=...
-    "run": Entry(
-        run.Run,
-        run.RODENT_RUN,
-        "Run task for any walker (walker=..., or walker_xml=FILE root_body=NAME).",
-    ),
+    "run": Entry(run.Run, run.RODENT_RUN, "Run task for any walker (walker=..., or walker_xml=FILE root_body=NAME)."),
     "run_gaps": Entry(
-        run_gaps.RunGaps,
-        run_gaps.RODENT_RUN_GAPS,
-        "Gaps corridor task for any walker (walker_xml=...).",
+        run_gaps.RunGaps, run_gaps.RODENT_RUN_GAPS, "Gaps corridor task for any walker (walker_xml=...)."
     ),
     "escape_bowl": Entry(
-        escape_bowl.EscapeBowl,
-        escape_bowl.RODENT_ESCAPE_BOWL,
-        "Bowl escape task for any walker (walker_xml=...).",
+        escape_bowl.EscapeBowl, escape_bowl.RODENT_ESCAPE_BOWL, "Bowl escape task for any walker (walker_xml=...)."
     ),
 }
 
