@@ -128,6 +128,42 @@ def test_the_tiny_test_env_resets_and_steps_on_c_physics():
     assert float(s.data.qpos[0]) > float(first.data.qpos[0]) and float(s.reward) > float(first.reward)
 
 
+SEED_ENVS = ["ant_run", "ant_run_gaps", "ant_escape_bowl", "rodent_run", "rodent_run_gaps", "rodent_escape_bowl"]
+
+
+@pytest.mark.parametrize("name,impl", by_env(SEED_ENVS + ["humanoid_run"], ("c",)))
+def test_the_default_video_camera_frames_the_animal(name, impl):
+    """`vnl train`'s final video and `vnl render` without --camera: the animal at the reset state
+    spans 30-90% of the image's width or height (the rat's `walker/side` camera showed it at a
+    tenth of the height). Measured on MuJoCo's segmentation render: the walker's geoms' pixels."""
+    import mujoco
+
+    from vnl.io import video
+
+    e = env(name, impl)
+    m = e.mj_model
+    s = jax.jit(e.reset)(jax.random.PRNGKey(0))
+    d = mujoco.MjData(m)
+    d.qpos[:] = np.asarray(s.data.qpos)
+    d.mocap_pos[:] = np.asarray(s.data.mocap_pos)
+    mujoco.mj_forward(m, d)
+    mine = [g for g in range(m.ngeom) if e._is_in_subtree(m, int(m.geom_bodyid[g]), e.root_body_id)]
+    try:
+        r = mujoco.Renderer(m, 240, 320)
+    except Exception as err:  # noqa: BLE001
+        pytest.skip(f"no OpenGL: {err}")
+    r.enable_segmentation_rendering()
+    r.update_scene(d, camera=video.resolve_camera(m, None))
+    seg = r.render()
+    r.close()
+    ys, xs = np.nonzero(np.isin(seg[..., 0], mine) & (seg[..., 1] == mujoco.mjtObj.mjOBJ_GEOM))
+    assert len(ys), f"{name}: the default camera does not see the animal"
+    height, width = (ys.max() - ys.min() + 1) / 240, (xs.max() - xs.min() + 1) / 320
+    assert 0.3 <= max(height, width) <= 0.9, (
+        f"{name}: the animal spans {height:.2f} of the height, {width:.2f} of the width"
+    )
+
+
 @pytest.mark.parametrize("name,impl", by_env(NAMES, BOTH))
 def test_reset_step_shapes_and_finiteness(name, impl):
     e = env(name, impl)

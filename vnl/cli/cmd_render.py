@@ -12,8 +12,8 @@ from vnl.errors import VnlError
 def add(sub: Any) -> None:
     p = options.command(sub, "render", "video of a trained policy", run, check)
     p.add_argument("run_dir", nargs="?")
-    p.add_argument("--camera", help="camera name (see --list-cameras); default: side")
-    p.add_argument("--out", help=".mp4 path (default <run_dir>/render_<camera>.mp4)")
+    p.add_argument("--camera", help="camera name (see --list-cameras); default: one that frames the animal (walker/tracking)")
+    p.add_argument("--out", help=".mp4 path (default <run_dir>/render_<camera>.mp4, render_default.mp4)")
     p.add_argument("--steps", type=options.POSITIVE, help="control steps (default: 10 s)")
     options.checkpoint_flag(p)
     p.add_argument("--width", type=options.integer(16, 4096), default=480)
@@ -49,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
     from vnl.rollout import policy_video
 
     run = load_run(args.run_dir, step=checks.chosen_step(args.run_dir, args.step), env_set=args.set)
-    name = f"render_{args.camera or 'side'}.mp4".replace("/", "_")
+    name = f"render_{args.camera or 'default'}.mp4".replace("/", "_")
     out = args.out or str(run.run_dir / name)
     path, n = policy_video(run.env, run.policy, out, args.camera, args.steps, args.width, args.height, args.seed)
     print(f"wrote {n} frames to {path}")

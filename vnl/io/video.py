@@ -15,11 +15,13 @@ from vnl.vision.camera import camera_names
 def resolve_camera(model: mujoco.MjModel, camera: str | None) -> int:
     """Camera id for `camera`; accepts `walker/<name>` or `<name>`. None: the default camera.
 
-    The default is `side` (a tracking camera every walker gets), else -1 (MuJoCo's free camera).
+    The default frames the animal: `walker/tracking` (vnl's camera following an attached walker
+    from behind, to its left and above, at its `view_distance`), else `side` (a standalone
+    walker's), else -1 (MuJoCo's free camera).
     """
     names = camera_names(model)
     if camera is None:
-        for default in ("side", "walker/side"):
+        for default in ("walker/tracking", "side", "walker/side"):
             i = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, default)
             if i >= 0:
                 return i

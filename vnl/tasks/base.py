@@ -164,7 +164,7 @@ def compile_world(walker: Walker, arena: mjcf.RootElement | None) -> tuple[mujoc
     else:
         if arena is None:
             raise ValueError(f"walker {walker.name!r} needs an arena")
-        _add_tracking_camera(walker, walker.size)
+        _add_tracking_camera(walker, walker.view_distance or walker.size)
         root = arena
         frame = root.attach(walker.mjcf_model)
         frame.add("freejoint")

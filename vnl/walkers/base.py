@@ -24,6 +24,9 @@ class Walker:
       height: typical standing height of the root body (m), for spawning above the ground.
       size: characteristic length (m) that arenas are scaled by (rodent 1.0 = dm_control's
         rodent corridors and bowl).
+      view_distance: how far (m, scaled as the `tracking` camera's offset) the default video
+        camera follows the walker from; None: `size`. Set so that the animal fills about half of
+        the frame (tests/test_envs.py checks every seed env).
       fuse_static: compile the world with MuJoCo's `fusestatic` (jointless bodies merged into
         their parents: a shallower tree, faster MJX compile).
     """
@@ -37,6 +40,7 @@ class Walker:
     height: float = 0.0
     size: float = 1.0
     fuse_static: bool = False
+    view_distance: float | None = None
 
 
 def add_tracking_cameras(body: mjcf.Element, distance: float, height: float) -> None:

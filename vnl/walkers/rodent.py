@@ -55,6 +55,7 @@ def build(self_collision: bool = False, contacts: str = "essential", rigid_tail:
         head=rat.head.name,
         height=0.06,
         size=1.0,
+        view_distance=0.4,  # the default video follows it at 0.4 m: the rat fills about half the frame
         fuse_static=rigid_tail,
     )
 
