@@ -12,8 +12,16 @@ curves (this script draws the reward and the task measure of each env into OUT/E
 `vnl render OUT/ENV-s0` shows the behaviour, and OUT/learning.md holds the table (each
 invocation's, one section per settings, envs and seeds).
 
+With `--results FILE` (the docs' is docs/results/results.json) each env's entry there is replaced
+by this invocation's: per seed the untrained and trained values of the reward and the task
+measures, minutes, steps and steps/s, and the learning curve (every evaluation); the machine, the
+date, the vnl commit and the command; and a frame of seed 0's trained policy mid-episode
+(docs/images/results/ENV.png). The docs' result cards are drawn from that file
+(scripts/docs/results.py). Only runs of the env's own preset without `--set` belong there.
+
     .venv/bin/python benchmarks/learning.py --out runs/learning [--envs ant_run rodent_run ...]
         [--seeds 0 1] [--preset cpu] [--set KEY=VALUE ...] [--compile-cache DIR]
+        [--results docs/results/results.json] [--alongside "what else ran"]
 
 Task measures (eval metrics, per evaluation episode): run tasks: mean forward velocity (m/s) and
 the fraction of the episode upright; gaps: gaps crossed and distance along the corridor (m); bowl:
@@ -153,6 +161,93 @@ def write_section(path: Path, lines: list[str]) -> None:
     path.write_text("\n\n".join(kept) + "\n")
 
 
+def machine() -> str:
+    """The machine, in words: CPU model, cores, memory, GPU or not."""
+    import os
+    import re
+
+    cpu = "unknown CPU"
+    try:
+        cpu = re.search(r"model name\s*:\s*(.*)", Path("/proc/cpuinfo").read_text()).group(1).strip()
+    except (OSError, AttributeError):
+        pass
+    gib = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
+    import jax
+
+    gpu = ", ".join(d.device_kind for d in jax.devices()) if jax.default_backend() == "gpu" else "no GPU"
+    return f"{cpu}, {len(os.sched_getaffinity(0))} cores, {gib:.0f} GiB, {gpu}"
+
+
+def frame(run: Path, png: Path, step: int = 100) -> None:
+    """A 480x360 image of `run`'s trained policy at control step `step` of its first episode (an
+    earlier step if the episode ends before), from the env's default video camera."""
+    import jax
+    import mediapy
+
+    from vnl.io import video
+    from vnl.policy import load_run
+    from vnl.rollout import rollout
+
+    loaded = load_run(run)
+    r = rollout(loaded.env, loaded.policy, jax.random.PRNGKey(1), episodes=1, steps=step + 1)
+    t = min(step, int(r.lengths[0]))
+    image = video.render_frames(
+        loaded.env.mj_model, r.qpos[0, t : t + 1], None, 480, 360, mocap_pos=r.mocap_pos[0, t : t + 1]
+    )
+    png.parent.mkdir(parents=True, exist_ok=True)
+    mediapy.write_image(str(png), image[0])
+
+
+def result_entry(env: str, args: argparse.Namespace, runs: dict[int, list[dict]], frame_path: str) -> dict:
+    """The results-file entry of `env` from its runs' records (`runs`: seed -> metrics records)."""
+    import datetime
+    import subprocess
+
+    keys = ["eval/episode_reward"] + [key for _, key, _ in MEASURES[task_of(env)]]
+    seeds = {}
+    for seed, recs in runs.items():
+        sps = [r["env_steps_per_sec"] for r in recs[1:] if r.get("env_steps_per_sec")]
+        seeds[str(seed)] = {
+            "untrained": {k: value(recs[0], k) for k in keys},
+            "trained": {k: value(recs[-1], k) for k in keys},
+            "minutes": round(value(recs[-1], "wall_time") / 60, 1),
+            "steps": int(recs[-1]["step"]),
+            "steps_per_sec": round(statistics.median(sps)) if sps else None,
+            "curve": {"step": [int(r["step"]) for r in recs], **{k: [value(r, k) for r in recs] for k in keys}},
+        }
+    commit = subprocess.run(
+        ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=Path(__file__).parent
+    )
+    return {
+        "env": env,
+        "preset": args.preset,
+        "measures": [
+            [label, key, spec]
+            for label, key, spec in [("eval reward", "eval/episode_reward", ".1f")] + MEASURES[task_of(env)]
+        ],
+        "seeds": seeds,
+        "frame": frame_path,
+        "machine": machine(),
+        "date": datetime.date.today().isoformat(),
+        "vnl_commit": commit.stdout.strip() or "unknown",
+        "command": f".venv/bin/python benchmarks/learning.py --out RUNS --envs {env} --seeds {' '.join(map(str, runs))}"
+        + (f" --preset {args.preset}" if args.preset != "cpu" else ""),
+        "alongside": args.alongside,
+    }
+
+
+def update_results(path: Path, entry: dict) -> None:
+    """Replaces `entry["env"]`'s entry of the results file `path` (JSON), keeping the others."""
+    import json
+
+    data = json.loads(path.read_text()) if path.is_file() else {}
+    data[entry["env"]] = entry
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(dict(sorted(data.items())), indent=1) + "\n")
+    tmp.replace(path)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", required=True, help="directory for the runs, curves and learning.md")
@@ -161,7 +256,11 @@ def main() -> None:
     parser.add_argument("--preset", default="cpu")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="for every run")
     parser.add_argument("--compile-cache", help="JAX compilation cache directory (default: vnl's)")
+    parser.add_argument("--results", help="the results file to update (the docs': docs/results/results.json)")
+    parser.add_argument("--alongside", default="nothing", help="what else ran on the machine, for the results file")
     args = parser.parse_args()
+    if args.results and args.set:
+        parser.error("--results records the presets as shipped: drop --set")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     header = f"Preset `{args.preset}`" + (f", `--set {' '.join(args.set)}`" if args.set else "")
@@ -174,6 +273,13 @@ def main() -> None:
         curves(env, dirs, out)
         lines += table(env, {seed: (run, records(run)) for seed, run in zip(args.seeds, dirs, strict=True)}) + [""]
         write_section(out / "learning.md", lines)
+        if args.results:
+            results = Path(args.results)
+            png = results.parent.parent / "images" / "results" / f"{env}.png"
+            frame(dirs[0], png)
+            runs = {seed: records(run) for seed, run in zip(args.seeds, dirs, strict=True)}
+            update_results(results, result_entry(env, args, runs, str(png.relative_to(results.parent.parent))))
+            print(f"[learning] {env}: {results} and {png}", flush=True)
     print("\n".join(lines))
     print(f"[learning] wrote {out / 'learning.md'}")
 

@@ -1,0 +1,304 @@
+"""The generated reference pages of the docs site: the CLI from its argparse parser, every config
+key from the config dataclasses, one page per registered env from the registry, its presets and
+its built env. `scripts/docs/gen_pages.py` writes them into the site at build time (mkdocs-gen-files);
+tests/test_docs.py checks them. Nothing here is typed by hand from the code it describes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import dataclasses
+import inspect
+import io
+import sys
+import textwrap
+import tokenize
+import typing
+from typing import Any
+
+
+# --- the CLI ------------------------------------------------------------------------------------
+def _subparsers(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
+    action = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    return dict(action.choices)
+
+
+def _help(parser: argparse.ArgumentParser, name: str) -> str:
+    action = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    return next((c.help or "" for c in action._choices_actions if c.dest == name), "")
+
+
+def _cell(text: Any) -> str:
+    return str(text).replace("|", "\\|").replace("\n", " ")
+
+
+def flag_rows(p: argparse.ArgumentParser) -> list[tuple[str, str, str, str]]:
+    """(flags, value, default, help) of every argument of `p` but --help, in the parser's order."""
+    rows = []
+    for a in p._actions:
+        if isinstance(a, argparse._HelpAction):
+            continue
+        flags = ", ".join(f"`{s}`" for s in a.option_strings) or f"`{a.metavar or a.dest}` (positional)"
+        if a.nargs == 0:
+            value = "—"
+        elif a.choices:
+            value = " \\| ".join(f"`{c}`" for c in a.choices)
+        else:
+            kind = getattr(a.type, "__name__", None) if a.type else "text"
+            value = f"`{a.metavar}`" if a.metavar and a.option_strings else (kind or "text")
+            if a.nargs in ("+", "*"):
+                value += " ..."
+        repeat = " (repeatable)" if isinstance(a, argparse._AppendAction) else ""
+        default = "" if a.default in (None, False, [], argparse.SUPPRESS) else f"`{a.default}`"
+        rows.append((flags, value + repeat, default, _cell(a.help or "")))
+    return rows
+
+
+def cli_markdown(parser: argparse.ArgumentParser) -> str:
+    """The CLI reference: every command, its usage and every flag with its help."""
+    out = [
+        "# Command line",
+        "",
+        "Generated from `vnl.cli.build_parser()` when the site is built: every command and every flag,",
+        "with the help text `vnl COMMAND --help` prints.",
+        "",
+    ]
+    for name, p in _subparsers(parser).items():
+        out += [f"## vnl {name}", "", _help(parser, name), "", "```", p.format_usage().strip(), "```", ""]
+        out += ["| flag | value | default | what it does |", "|---|---|---|---|"]
+        out += [f"| {' | '.join(row)} |" for row in flag_rows(p)]
+        out.append("")
+    return "\n".join(out)
+
+
+# --- config dataclasses -------------------------------------------------------------------------
+@dataclasses.dataclass
+class FieldDoc:
+    name: str
+    type: str
+    default: str
+    doc: str
+
+
+def _comments(source: str) -> dict[int, str]:
+    """Line number (1-based) -> the comment on that line."""
+    found = {}
+    for tok in tokenize.generate_tokens(io.StringIO(source).readline):
+        if tok.type == tokenize.COMMENT:
+            found[tok.start[0]] = tok.string.lstrip("#").strip()
+    return found
+
+
+def field_docs(cls: type) -> list[FieldDoc]:
+    """Each init field of dataclass `cls`: its annotation and default as written in the source, and
+    its comments (the lines of comment right above it, and the one at its end)."""
+    source = textwrap.dedent(inspect.getsource(cls))
+    lines = source.splitlines()
+    comments = _comments(source)
+    body = ast.parse(source).body[0]
+    assert isinstance(body, ast.ClassDef)
+    init = {f.name for f in dataclasses.fields(cls) if f.init}
+    docs = []
+    for node in body.body:
+        if not (isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name) and node.target.id in init):
+            continue
+        above, n = [], node.lineno - 1
+        while n >= 1 and lines[n - 1].strip().startswith("#"):
+            above.insert(0, comments.get(n, ""))
+            n -= 1
+        trailing = comments.get(node.end_lineno or node.lineno, "")
+        default = ast.get_source_segment(source, node.value) if node.value is not None else "(required)"
+        doc = " ".join(x for x in [*above, trailing] if x)
+        docs.append(FieldDoc(node.target.id, ast.get_source_segment(source, node.annotation) or "", default or "", doc))
+    return docs
+
+
+def _nested(cls: type) -> dict[str, type]:
+    hints = typing.get_type_hints(cls)
+    return {f.name: hints[f.name] for f in dataclasses.fields(cls) if dataclasses.is_dataclass(hints[f.name])}
+
+
+def config_section(cls: type, prefix: str) -> list[str]:
+    """A table of `cls`'s keys (`prefix.key`) with type, default and comment, after its docstring."""
+    out = [inspect.cleandoc(cls.__doc__ or ""), ""] if cls.__doc__ else []
+    out += ["| key | type | default | notes |", "|---|---|---|---|"]
+    for f in field_docs(cls):
+        out.append(f"| `{prefix}{f.name}` | `{_cell(f.type)}` | `{_cell(f.default)}` | {_cell(f.doc)} |")
+    return out + [""]
+
+
+def config_markdown() -> str:
+    """Every key of a training config (`TrainConfig` and its sections)."""
+    from vnl.train.config import StageConfig, TrainConfig
+
+    out = [
+        "# Config keys",
+        "",
+        "Generated from the config dataclasses (`vnl/train/config.py` and the sections it holds) when",
+        "the site is built. A run's `config.yaml` holds every key; `--set KEY=VALUE`, a `--config` YAML",
+        "file and the presets set them (precedence: preset < file < `--set` < flags).",
+        "`vnl train ENV --print-config` prints the resolved config of a command line.",
+        "",
+        "## Top level",
+        "",
+        *config_section(TrainConfig, ""),
+    ]
+    for name, cls in _nested(TrainConfig).items():
+        out += [f"## {name}", "", *config_section(cls, f"{name}.")]
+    out += ["## curriculum", "", "A list of stages, each:", "", *config_section(StageConfig, "curriculum[i].")]
+    out += [
+        "## env_config",
+        "",
+        "The env's own config: its keys differ per env, and each env's page lists them.",
+        "",
+    ]
+    return "\n".join(out)
+
+
+def all_field_docs(cls: type) -> list[FieldDoc]:
+    """`field_docs` over `cls` and the dataclasses it derives from (a base's field first, a
+    subclass's redefinition replacing it)."""
+    docs: dict[str, FieldDoc] = {}
+    for base in reversed(cls.__mro__):
+        if dataclasses.is_dataclass(base) and base.__module__.startswith("vnl"):
+            docs.update({d.name: d for d in field_docs(base)})
+    order = [f.name for f in dataclasses.fields(cls) if f.init]
+    return [docs[n] for n in order if n in docs]
+
+
+def _value(value: Any) -> str:
+    import yaml
+
+    from vnl import typed_config
+
+    text = yaml.safe_dump(typed_config.to_dict(value), default_flow_style=True, width=10_000)
+    return text.strip().removesuffix("...").strip()
+
+
+# --- envs ---------------------------------------------------------------------------------------
+def env_names() -> list[str]:
+    from vnl.envs import registry
+
+    return registry.names()
+
+
+_LAYOUTS: dict[str, tuple[list[tuple[str, int]], Any]] = {}
+
+
+def _built(env: str, preset: str) -> Any:
+    """The env `vnl train ENV --preset P` trains (the first stage's with a curriculum), built once
+    per distinct env config (physics settings aside: they change no observation)."""
+    from vnl.train import config as train_config
+    from vnl.train.worlds import Worlds
+
+    config = Worlds(train_config.build(env, preset)).config_of(0)
+    key = repr((env, sorted((k, repr(v)) for k, v in config.env_config.items() if k not in ("impl", "threads"))))
+    if key not in _LAYOUTS:
+        built = train_config.build(env, preset, file_values={"env_config": {"impl": "c", "threads": 1}})
+        e = Worlds(built).env(0)
+        _LAYOUTS[key] = (e.observation_layout(), e)
+    return _LAYOUTS[key]
+
+
+def _layout_table(layout: list[tuple[str, int]]) -> list[str]:
+    rows, start = [], 0
+    for name, width in layout:
+        rows.append(f"| `{name}` | {width} | {start}–{start + width - 1} |")
+        start += width
+    return ["| entry | width | indices |", "|---|---:|---|", *rows, f"| **total** | **{start}** | |"]
+
+
+def env_markdown(name: str) -> str:
+    """One registered env: what it is, its config keys and defaults, observation per preset,
+    reward terms, task measures, cameras and presets (generated from the registry and the built env)."""
+    import jax
+    import jax.numpy as jp
+
+    from vnl.envs import registry
+    from vnl.io import video
+    from vnl.train import presets
+
+    entry = registry.entry(name)
+    task = sys.modules[entry.factory.__module__]
+    out = [f"# {name}", "", entry.description, ""]
+    if name in registry.ALIASES:
+        alias = registry.ALIASES[name]
+        out += [f"Its defaults are those of [{alias}]({alias}.md), for any walker.", ""]
+    out += ["## Observation, per preset", ""]
+    layouts: dict[str, list[str]] = {}
+    env = None
+    for preset in presets.names():
+        layout, env = _built(name, preset)
+        layouts.setdefault(repr(layout), []).append(preset)
+    for key, names in layouts.items():
+        layout = ast.literal_eval(key)
+        size = sum(w for _, w in layout)
+        which = ", ".join(f"`{p}`" for p in names)
+        out += [f"**Presets {which}: observation size {size}.**", "", *_layout_table(layout), ""]
+    state = jax.eval_shape(env.reset, jax.ShapeDtypeStruct((2,), jp.uint32))
+    rewards = sorted(k.removeprefix("reward/") for k in state.metrics if k.startswith("reward/"))
+    measures = sorted(k.removeprefix("measure/") for k in state.metrics if k.startswith("measure/"))
+    out += [
+        "## Actions, time, cameras",
+        "",
+        f"- actions: {env.action_size}, in [-1, 1] (scaled to the actuators' control ranges)",
+        f"- control step: {env.dt:.3f} s; episode: {env.config.episode_length} control steps "
+        f"({env.config.episode_length * env.dt:g} s) by default",
+        f"- reward terms (`metrics['reward/<term>']`, summing to the reward): {', '.join(f'`{r}`' for r in rewards)}",
+        f"- task measures (`metrics['measure/<name>']`, summed over an episode; `eval/episode_measure/<name>` "
+        f"in metrics.jsonl): {', '.join(f'`{m}`' for m in measures) or 'none'}",
+        f"- cameras (`vnl render --camera`): {', '.join(f'`{c}`' for c in video.camera_names(env.mj_model))}",
+        "",
+        "## The task",
+        "",
+        f"`{entry.factory.__module__}.{entry.factory.__name__}`:",
+        "",
+        inspect.cleandoc(task.__doc__ or ""),
+        "",
+        "## env_config keys and defaults",
+        "",
+        f"`vnl train {name} --set env_config.KEY=VALUE`, `vnl.make({name!r}, KEY=VALUE)`.",
+        "",
+        "| key | type | default | notes |",
+        "|---|---|---|---|",
+    ]
+    default = registry.default_config(name)
+    for f in all_field_docs(type(default)):
+        out.append(f"| `{f.name}` | `{_cell(f.type)}` | `{_cell(_value(getattr(default, f.name)))}` | {_cell(f.doc)} |")
+    out += ["", "## Presets", ""]
+    path = presets.path(name)
+    if path is None:
+        out += ["This env has no presets of its own: the generic ones apply (`vnl/train/presets/base.yaml`).", ""]
+    else:
+        text = path.read_text()
+        starts = [line.split(":", 1)[1].strip() for line in text.splitlines() if line.startswith("extends:")]
+        extends = starts[0] if starts else None
+        out += [f"`vnl/train/presets/{path.name}`, over the generic presets (`base.yaml`)"]
+        out[-1] += f" and `{extends}.yaml`:" if extends else ":"
+        out += ["", "```yaml", text.rstrip(), "```", ""]
+        if extends:
+            shared = (path.parent / f"{extends}.yaml").read_text().rstrip()
+            out += [f"`{extends}.yaml`:", "", "```yaml", shared, "```", ""]
+    out += [f"`vnl train {name} --preset cpu --print-config` prints a preset's whole resolved config.", ""]
+    return "\n".join(out)
+
+
+def envs_index(names: list[str]) -> str:
+    """The table of registered envs: description, observation size (cpu preset), actions."""
+    from vnl.envs import registry
+
+    out = [
+        "# Environments",
+        "",
+        "Every registered env (`vnl list`), generated from the registry when the site is built. Each page",
+        "gives the observation per preset, the reward terms, task measures, cameras, config keys and presets.",
+        "",
+        "| env | observation (`cpu` preset) | actions | what it is |",
+        "|---|---:|---:|---|",
+    ]
+    for name in names:
+        layout, env = _built(name, "cpu")
+        size = sum(w for _, w in layout)
+        out.append(f"| [{name}]({name}.md) | {size} | {env.action_size} | {_cell(registry.entry(name).description)} |")
+    return "\n".join(out + [""])
