@@ -332,7 +332,7 @@ def test_rodent_gaps_presets_run_gapless_with_a_bonus_then_gaps_without_it():
 
 def test_ant_gaps_cpu_preset_sees_a_small_depth_image_of_the_floor_only_with_vision():
     """With --vision, ant_run_gaps' cpu preset renders 16x16 depth from the ant's ground camera
-    (affordable on a CPU, README: Vision); blind, the same preset has no pixels."""
+    (affordable on a CPU: docs/experiments/vision-gaps.md); blind, the same preset has no pixels."""
     seeing = train_config.build("ant_run_gaps", "cpu", flags={"vision": {"enabled": True}})
     seeing.validate()
     sizes = seeing.make_env().observation_size

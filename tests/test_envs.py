@@ -650,7 +650,7 @@ MAX_TOL = (0.6, 2.5, 0.05)
 def test_c_and_mjx_agree_from_the_same_states(name, impl):
     """One control step of MuJoCo C from states of MJX's rollout (mid-episode: feet on the floor,
     on the gaps' moving platforms, on the bowl's heightfield) lands where MJX's next step did,
-    within the tolerances above (README, Physics on a CPU)."""
+    within the tolerances above (docs/experiments/physics-on-cpu.md)."""
     ec = env(name, "c")
     s0, traj, actions = random_rollout(name)
     ts = np.asarray([t for t in SAMPLE_T if t + 1 < STEPS])

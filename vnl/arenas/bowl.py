@@ -73,7 +73,7 @@ def slope_profile(params: BowlParams, ring: float = 0.5) -> list[RingSlope]:
     central differences over its points (MuJoCo's triangles between them can be a little steeper).
     Smooth (smoothness 1), the bowl's steepest slope is atan(π·height/half_size), 14.7° for
     dm_control's bowl, at a quarter and three quarters of the radius; the bumps make it steeper
-    (README, Does every task learn?)."""
+    (docs/experiments/rat-bowl.md)."""
     if not ring > 0:
         raise VnlError(f"slope_profile: ring (the rings' width, m) must be > 0, got {ring}")
     z = terrain(params) * params.height

@@ -52,8 +52,8 @@ class GapsParams:
     # MJX broad phase: collide only the `max_geom_pairs` pairs per geom-type group whose bounding
     # spheres are closest (0: every pair). Off by default: a platform's ~1-m bounding sphere holds
     # the whole walker, so the ranking is by distance to box centres, not by contact; at 16 the
-    # MJX rat lost penetrating contacts in 11% of states and blew up under random actions
-    # (benchmarks/mjx_broadphase.py: 48 lost none there and is 1.7x faster; README, Arenas).
+    # MJX rat lost penetrating contacts in 11% of states and blew up under random actions; 48 lost
+    # none there and is 1.7x faster (docs/experiments/mjx-broadphase.md).
     max_geom_pairs: int = 0
 
     @property

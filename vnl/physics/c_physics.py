@@ -1,7 +1,7 @@
 """MuJoCo C physics inside jitted JAX programs: `mujoco.batch.Batch` behind one host call per step.
 
 MJX's JAX implementation is made for accelerators; on a CPU, MuJoCo C steps the rat 10x faster
-(README, Physics on a CPU). `CPhysics` keeps everything else in JAX — observations, rewards,
+(docs/experiments/physics-on-cpu.md). `CPhysics` keeps everything else in JAX — observations, rewards,
 cameras, auto-reset, PPO — and advances the physics with one call per (vmapped) batch of envs
 into `mujoco.batch.Batch`, which steps all of them on a thread pool, bit-identical at any thread
 count. The call is an XLA FFI call (`vnl.physics.ffi`), so the programs stay cacheable.

@@ -61,9 +61,8 @@ class WalkerTaskConfig:
     clock_period: float | None = None
     # Add `heading` to the observation, right after the proprioception: the world x-axis (the run's
     # and the corridor's forward direction) in the root body's frame, 3 numbers: a compass.
-    # dm_control's proprioception senses tilt (`world_zaxis`) but not yaw, so without it a walker
-    # cannot tell which way is forward once it has turned: the rat's running policy drifted
-    # 10-160° off +x over its 10 s episodes (README, Does every task learn?). rodent_run's default.
+    # dm_control's proprioception senses tilt (`world_zaxis`) but not yaw; without it the rat's
+    # gait drifted off +x (docs/experiments/rat-gait.md). rodent_run's default.
     observe_heading: bool = False
     # Tilt gravity by this many degrees about the world y-axis so that the floor is an incline
     # rising along +x (the run's and the corridor's forward direction; negative: downhill). The
@@ -71,7 +70,7 @@ class WalkerTaskConfig:
     # is the floor's normal, not gravity's up: the walker feels the slope only through its
     # dynamics (dm_control's walkers sense gravity through an accelerometer, not observed here).
     # A probe of how steep a trained gait climbs (`vnl eval RUN --set env_config.incline=10`) and a
-    # curriculum knob (README, Does every task learn?, the rat in the bowl).
+    # curriculum knob (docs/experiments/rat-bowl.md).
     incline: float = 0.0
 
     def validate(self) -> None:
@@ -125,7 +124,7 @@ def check_warp_available() -> None:
     if jax.default_backend() != "gpu":
         raise VnlError(
             f"impl: 'warp' runs on NVIDIA GPUs only, and JAX's backend here is {jax.default_backend()!r}; "
-            "install JAX's CUDA build (see README) or use impl: jax"
+            "install JAX's CUDA build (see docs/getting-started/install.md) or use impl: jax"
         )
 
 

@@ -62,13 +62,13 @@ class RunConfig(WalkerTaskConfig):
     # Physics: MJX (default) or one of Brax's pipelines (ant and humanoid; see vnl.physics.brax_pipelines).
     backend: Literal["mjx", "generalized", "positional", "spring"] = "mjx"
     # Actuator gears (one per actuator) replacing the model's, e.g. Brax's humanoid env's gears for
-    # its positional/spring pipelines (README, physics backends); None keeps the model's.
+    # its positional/spring pipelines (docs/how-to/physics.md); None keeps the model's.
     actuator_gear: tuple[float, ...] | None = None
     # Foot-slip cost: -foot_slip_cost_weight x `foot_slip`, the summed horizontal speed (m/s) of
     # the end effectors' colliding geoms that touch the floor (lowest point below
     # `foot_contact_height`) at both ends of the control step: a stance foot that slides. 0: off
-    # (no `reward/foot_slip` term). The rat's floor gait skidded a hind toe at ~0.7 m/s, a gait that
-    # caught on cracks and slid on the bowl's slope (README, Does every task learn?).
+    # (no `reward/foot_slip` term). Off by default: on the rat it halved the slip and slowed the
+    # gait, no better on cracks (docs/experiments/rat-gait.md).
     foot_slip_cost_weight: float = 0.0
     foot_contact_height: float = 0.005
 
@@ -128,7 +128,8 @@ HUMANOID_RUN = RunConfig(
     healthy_min_upright=-1.0,
     reset_noise_scale=0.01,
 )
-"""`humanoid_run` defaults: the seed notebooks' MJX humanoid (README: Tasks and rewards)."""
+"""`humanoid_run` defaults: the seed notebooks' MJX humanoid with Brax's rewards; its presets reshape
+them (docs/experiments/humanoid-clipping.md)."""
 
 BRAX_HUMANOID_RUN = dataclasses.replace(HUMANOID_RUN, walker="brax_humanoid")
 """`brax_humanoid_run`: Brax's humanoid with the same task; runs on MJX or a Brax pipeline (`backend`)."""
@@ -148,7 +149,7 @@ healthy while the torso is 0.2-1 m high), 50 ms control steps; MJX or a Brax pip
 
 Brax's own envs step the positional and spring pipelines with smaller physics steps (ant: 5 ms ×
 10, humanoid: 1.5 ms × 10, the control step unchanged); set `physics_timestep`/`n_substeps` to
-match (README, physics backends).
+match (docs/how-to/physics.md).
 """
 
 RODENT_RUN = RunConfig(
@@ -169,24 +170,14 @@ RODENT_RUN = RunConfig(
 )
 """`rodent_run` defaults: dm_control's rat on a flat floor, 20 ms control steps, 10 s episodes.
 
-Physics: 2 ms × 10 with 4 Newton iterations. The rat weighs 0.34 kg with stiff position
-actuators; with 1 Newton iteration it blows up within 0.1 s at 1 or 2 ms (MuJoCo C and MJX
-alike); 2 iterations survive zero action but not random actions at 2 ms; 4 match the
-100-iteration reference (torso height after 2 s of zero action 0.053 m vs 0.051 m).
-Rewards: a rat runs at most ~1 m/s, so forward velocity is weighted 5 against a healthy bonus
-of 1; 36 actuators make |a|² up to 36, so the control cost weight is 0.01.
-Healthy: the torso 2.5-50 cm high and tilted at most 45° (cos 0.7071, the upright measure's
-tilt). With any tilt short of lying on its back counted healthy (0.0), an untrained policy lying
-on its side earned the whole healthy bonus; at 60° (0.5, where talmolab's vnl-playground rodent
-tasks end episodes) the cpu preset's two seeds stood (0.07 m/s) or lunged and tipped over (0.30
-m/s, upright 75%); at 45° three seeds stayed upright 87-100% of the episode and the only gaits
-appeared (0.69 m/s at one evaluation of seeds 0 and 2, not stable; README, Does every task
-learn?). 0.7071 (not `base.UPRIGHT_COS`, 0.70711) is the value those runs measured.
-Heading: the rat observes the world x-axis in its torso frame (`observe_heading`). Without it
-every gait above was lost again: the policy could not see which way it faced, its runs curved
-10-160° off +x within an episode (the decayed normal policy's best checkpoint, 16 episodes), and
-the x-velocity that pays fell with the turn; with it the cpu preset's seed 0 ran at 1.57 m/s,
-upright through all 64 evaluation episodes, at 4.6M steps (README, Does every task learn?).
+Physics: 2 ms × 10 with 4 Newton iterations (with 1 the rat blows up within 0.1 s).
+Rewards: forward velocity weighted 5 against a healthy bonus of 1 (a rat runs at most ~1 m/s);
+control cost 0.01 (36 actuators).
+Healthy: the torso 2.5-50 cm high and tilted at most 45° (0.7071, the value the runs measured;
+60° and no check gave standing, lunging or a rat on its side).
+Heading: the rat observes the world x-axis in its torso frame (`observe_heading`); without it
+every gait it found drifted off +x and was lost.
+The runs behind each choice: docs/experiments/rat-gait.md.
 """
 
 

@@ -64,20 +64,16 @@ class RunGapsConfig(WalkerTaskConfig):
     target_velocity: float = 1.0
     spawn_x: float = 5.0
     terminate_at_height: float = -0.3
-    # The episode also fails when the root body's centre drops below this height (m; None: never).
-    # The ant's torso, a sphere of radius 0.25 m, wedges into a gap of 0.3 m or more with its
-    # centre below 0.2 m and its feet on the platforms, above `terminate_at_height`; without this
-    # it flailed there for the rest of the episode (frames: README, Results).
+    # The episode also fails when the root body's centre drops below this height (m; None: never):
+    # the ant's torso wedged in a gap, feet on the platforms (docs/experiments/ant-gaps.md).
     terminate_root_below: float | None = None
     # The episode also fails when the lowest point of an end effector's colliding geoms drops below
-    # this height (m; the platforms' top is 0; None: never): a foot stepping into a gap. The ant's
-    # legs cannot lift a lower leg that hangs in a gap out over the edge without raising the torso on
-    # the other three; stepping in trapped it there for the rest of the episode (frames: README).
+    # this height (m; the platforms' top is 0; None: never): a foot stepping into a gap, which
+    # trapped the ant's leg there (docs/experiments/ant-gaps.md).
     terminate_foot_below: float | None = None
     # The episode also fails when the root body's z-axis points up by less than this (the cosine of
-    # the largest tilt, as rodent_run's check; None: never). dm_control's task has no such check,
-    # and with MuJoCo C (no contact termination) the rat fell onto its side at once and learned to
-    # wriggle forward lying down (README, Results).
+    # the largest tilt, as rodent_run's check; None: never, as dm_control's task): without it the
+    # rat learned to wriggle forward lying down (docs/experiments/rat-corridor.md).
     healthy_min_upright: float | None = None
     # Reward per step that does not fail (0: dm_control's velocity term alone). With a tilt check,
     # a bonus makes staying up worth something beyond the speed it allows.
@@ -159,8 +155,7 @@ ANT_RUN_GAPS = RunGapsConfig(
 """`ant_run_gaps`: the rodent corridor scaled by the ant's size (×2.5: platforms 1-2 m, gaps
 0.125-0.5 m, target 2.5 m/s, fail below -0.75 m), with `ant_run`'s physics (10 ms × 5). The ant
 observes the corridor's direction and its offset from the centre line (`observe_corridor`):
-without them a policy trained without gaps ran off the 5 m wide corridor's side within 2.8-7.2 s
-(3 episodes: |y| 3.1-3.3 m after 3.4-8.2 m along it; README, Results)."""
+without them it ran off the corridor's side (docs/experiments/ant-gaps.md)."""
 
 
 class RunGaps(WalkerTask):
