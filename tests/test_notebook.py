@@ -1,4 +1,4 @@
-"""docs/quickstart.ipynb runs end to end (executed with nbclient in a fresh kernel)."""
+"""docs/tutorials/quickstart.ipynb runs end to end (executed with nbclient in a fresh kernel)."""
 
 import os
 from pathlib import Path
@@ -13,7 +13,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_quickstart_notebook_runs(tmp_path):
-    nb = nbformat.read(ROOT / "docs" / "quickstart.ipynb", as_version=4)
+    nb = nbformat.read(ROOT / "docs" / "tutorials" / "quickstart.ipynb", as_version=4)
     client = NotebookClient(nb, timeout=900, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}})
     env = {
         **os.environ,
