@@ -366,7 +366,13 @@ class PPOLoop:
         t = time.time()
         training, env = _strip_weak_type((state.training, state.env))
         keys = jax.random.split(state.key, self.n_devices)
-        self._epoch_exec = self._epoch.lower(training, env, keys).compile()
+        compiled = self._epoch.lower(training, env, keys).compile()
+        # With several processes, jax's shard_map-based pmap (the only one after jax 0.9.2) compiles
+        # for global arrays and converts each process's arrays when called; its ahead-of-time
+        # executable does not convert them. The epoch is then called through the pmap, which
+        # reuses this compilation. The classic pmap (jax_pmap_shmap_merge off) takes them as they are.
+        classic_pmap = jax.config.values.get("jax_pmap_shmap_merge") is False
+        self._epoch_exec = compiled if self.process_count == 1 or classic_pmap else None
         return time.time() - t
 
     def epoch(self, state: LoopState) -> tuple[LoopState, dict[str, float]]:
