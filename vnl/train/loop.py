@@ -160,6 +160,10 @@ class PPOLoop:
         self.process_count = jax.process_count()
         self.process_index = jax.process_index()
         check_devices(config)
+        if jax.device_count() > 1 and (0, 11) <= jax.__version_info__ < (0, 12):
+            # jaxlib 0.11's Shardy pass segfaults compiling the pmapped reset and epoch over several
+            # devices (mlir::sdy::ManualComputationUnusedInputsPattern); 0.12 does not. GSPMD does not.
+            jax.config.update("jax_use_shardy_partitioner", False)
         self.local_envs = p.num_envs // self.process_count
         self.episode_length = config.episode_length()
         train_models, eval_models = self._randomized_models(env)
