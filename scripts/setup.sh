@@ -22,9 +22,18 @@ else
        "(Debian: libegl1 libgl1-mesa-dri libosmesa6), and chromium for the web viewer test" >&2
 fi
 
-PY=${PYTHON:-python3.11}
-command -v "$PY" >/dev/null 2>&1 || PY=python3
-"$PY" -c 'import sys; assert sys.version_info[:2] == (3, 11), f"vnl needs Python 3.11, found {sys.version.split()[0]}"'
+# Python 3.12 (jax 0.11 and newer need it): $PYTHON, else python3.12, else pyenv's newest 3.12.
+PY=${PYTHON:-python3.12}
+if ! "$PY" -c '' >/dev/null 2>&1 && command -v pyenv >/dev/null 2>&1; then
+  v=$(pyenv versions --bare 2>/dev/null | grep -E '^3\.12\.[0-9]+$' | sort -V | tail -1 || true)
+  if [ -n "$v" ]; then PY="$(pyenv root)/versions/$v/bin/python3.12"; fi
+fi
+"$PY" -c '' >/dev/null 2>&1 || PY=python3
+"$PY" -c 'import sys; assert sys.version_info[:2] == (3, 12), f"vnl needs Python 3.12, found {sys.version.split()[0]}"'
+# A .venv of another Python (an earlier vnl's 3.11) is made anew.
+if [ -x .venv/bin/python ] && ! .venv/bin/python -c 'import sys; assert sys.version_info[:2] == (3, 12)' 2>/dev/null; then
+  rm -rf .venv
+fi
 [ -x .venv/bin/python ] || "$PY" -m venv .venv
 .venv/bin/python -m pip install -q --upgrade pip
 # requirements.lock pins every transitive dependency to the set tested in CI.

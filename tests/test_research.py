@@ -77,6 +77,11 @@ def resumed(tmp_path_factory):
     return out, result
 
 
+@pytest.mark.skipif(
+    not hasattr(jax, "device_put_replicated"),
+    reason="brax 0.14.2's ppo.train needs jax.device_put_replicated (removed in jax 0.10); "
+    "test_loop_matches_frozen_brax_ppo_train compares with its frozen results",
+)
 @pytest.mark.parametrize("desired_kl", [None, 0.01])
 def test_loop_matches_brax_ppo_train(desired_kl):
     """vnl's loop is Brax's PPO: same parameters and evaluations as `ppo.train` for one seed, with
@@ -106,6 +111,35 @@ def test_loop_matches_brax_ppo_train(desired_kl):
         np.testing.assert_allclose(
             tm["training/learning_rate"], brax_records[-1][1]["training/learning_rate"], rtol=1e-5
         )
+        assert tm["training/learning_rate"] != config.ppo.learning_rate
+
+
+@pytest.mark.parametrize("desired_kl", [None, 0.01])
+def test_loop_matches_frozen_brax_ppo_train(desired_kl):
+    """The same against `ppo.train`'s results frozen on jax 0.8.2 (tests/data/brax_ppo_reference_*.npz,
+    written by tests/data/make_brax_ppo_reference.py): brax 0.14.2's `ppo.train` needs
+    `jax.device_put_replicated`, gone in jax 0.10, while vnl's loop runs on any jax."""
+    tag = "none" if desired_kl is None else f"kl{desired_kl}"
+    with np.load(ROOT / "tests" / "data" / f"brax_ppo_reference_{tag}.npz") as z:
+        ref = dict(z)
+    config = cfg(desired_kl=desired_kl)
+    env = registry.entry("test_point").factory(config.resolved_env_config())
+    loop = PPOLoop(env, config)
+    state = loop.init(config.seed)
+    state, m0 = loop.evaluate(state, {})
+    ours = [(0, m0)]
+    while loop.env_steps(state) < config.ppo.num_timesteps:
+        state, tm = loop.epoch(state)
+        state, m = loop.evaluate(state, tm)
+        ours.append((loop.env_steps(state), m))
+    assert [s for s, _ in ours] == ref["steps"].tolist() == [0, K, 2 * K]
+    mine = leaves(loop.params(state))
+    assert len(mine) == sum(k.startswith("leaf_") for k in ref)
+    for i, a in enumerate(mine):
+        np.testing.assert_allclose(a, ref[f"leaf_{i}"], rtol=1e-5, atol=1e-6, err_msg=f"leaf {i}")
+    np.testing.assert_allclose([m["eval/episode_reward"] for _, m in ours], ref["eval_episode_reward"], rtol=1e-5)
+    if desired_kl is not None:
+        np.testing.assert_allclose(tm["training/learning_rate"], ref["learning_rate"], rtol=1e-5)
         assert tm["training/learning_rate"] != config.ppo.learning_rate
 
 

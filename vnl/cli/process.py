@@ -56,6 +56,13 @@ def configure_process(mujoco_needed: bool = True) -> str | None:
     # installed; that is expected here, so the first import happens with stdout captured.
     with contextlib.redirect_stdout(io.StringIO()):
         import mujoco.mjx  # noqa: F401
+    # dm_control.composer turns every DeprecationWarning on when imported (its environment.py calls
+    # warnings.simplefilter("always", DeprecationWarning)), ahead of the filter above: jaxopt's "no
+    # longer maintained" (imported through brax.envs; brax still imports jaxopt, as ott-jax/ott#653
+    # reports of it) then reached the console. Imported here, and the filter put back.
+    import dm_control.composer  # noqa: F401
+
+    warnings.filterwarnings("ignore", category=DeprecationWarning)
     return gl
 
 

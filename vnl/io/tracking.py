@@ -7,6 +7,7 @@ warns once, is switched off, and never stops training.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import netrc
 import os
@@ -153,6 +154,10 @@ class Tracker:
             except Exception as e:  # noqa: BLE001
                 self.sinks.remove(sink)
                 self._warn(sink.name, "failed", e)
+                # Closed now, not left to its atexit hook: tensorboardX's would start a thread
+                # at interpreter shutdown, which Python 3.12 refuses (python/cpython#113964).
+                with contextlib.suppress(Exception):  # it already failed and was reported
+                    sink.close()
 
     def upload_video(self, path: Path, caption: str) -> None:
         sink = self.wandb

@@ -8,15 +8,21 @@ side effects, so both can be jitted, vmapped and scanned.
 from __future__ import annotations
 
 import abc
+import contextlib
 import copy
 import functools
+import io
 from typing import Any
 
 import jax
 import jax.numpy as jp
 import mujoco
 from flax import struct
-from mujoco import mjx
+
+# mujoco.mjx prints "Failed to import warp" and "... mujoco_warp" at import when the GPU-only Warp
+# backend is not installed (mujoco/mjx/warp/__init__.py); vnl does not use it. (vnl.cli does the same.)
+with contextlib.redirect_stdout(io.StringIO()):
+    from mujoco import mjx
 
 from vnl import physics as physics_lib
 

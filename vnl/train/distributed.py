@@ -53,7 +53,9 @@ def initialize(
     jax.config.update("jax_cpu_collectives_implementation", "gloo")
     # jax 0.8's pmap-on-shard_map path mis-shards constant outputs (e.g. the zero metrics of a
     # reset) across processes ("Unexpected XLA sharding override"); the classic pmap does not.
-    jax.config.update("jax_pmap_shmap_merge", False)
+    # jax after 0.9.2 removed the option (pmap is always shard_map there); updating it raises.
+    if "jax_pmap_shmap_merge" in jax.config.values:
+        jax.config.update("jax_pmap_shmap_merge", False)
     try:
         jax.distributed.initialize(
             coordinator_address=coordinator,

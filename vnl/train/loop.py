@@ -160,6 +160,10 @@ class PPOLoop:
         self.process_count = jax.process_count()
         self.process_index = jax.process_index()
         check_devices(config)
+        if jax.device_count() > 1 and (0, 11) <= jax.__version_info__ < (0, 12):
+            # jaxlib 0.11's Shardy pass segfaults compiling the pmapped reset and epoch over several
+            # devices (mlir::sdy::ManualComputationUnusedInputsPattern); 0.12 does not. GSPMD does not.
+            jax.config.update("jax_use_shardy_partitioner", False)
         self.local_envs = p.num_envs // self.process_count
         self.episode_length = config.episode_length()
         train_models, eval_models = self._randomized_models(env)
@@ -372,7 +376,13 @@ class PPOLoop:
         t = time.time()
         training, env = _strip_weak_type((state.training, state.env))
         keys = jax.random.split(state.key, self.n_devices)
-        self._epoch_exec = self._epoch.lower(training, env, keys).compile()
+        compiled = self._epoch.lower(training, env, keys).compile()
+        # With several processes, jax's shard_map-based pmap (the only one after jax 0.9.2) compiles
+        # for global arrays and converts each process's arrays when called; its ahead-of-time
+        # executable does not convert them. The epoch is then called through the pmap, which
+        # reuses this compilation. The classic pmap (jax_pmap_shmap_merge off) takes them as they are.
+        classic_pmap = jax.config.values.get("jax_pmap_shmap_merge") is False
+        self._epoch_exec = compiled if self.process_count == 1 or classic_pmap else None
         return time.time() - t
 
     def epoch(self, state: LoopState) -> tuple[LoopState, dict[str, float]]:
