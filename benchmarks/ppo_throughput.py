@@ -1,66 +1,85 @@
-"""Training env steps/s: `vnl train` (vnl's resumable PPO loop with metrics, full-state
-checkpoints, progress) vs calling `brax.training.agents.ppo.train` directly on the same env and
-hyperparameters, in one process.
+"""Training env steps/s of `vnl train`, compared between software stacks or between physics.
 
-Both use the same compiled-from-scratch setup; steps/s is `training/sps` (env steps per second of
-a training epoch), averaged over the evaluations after the first, whose epoch compiles. Brax's
-`ppo.train` compiles its training epoch a second time in its second epoch (it places its state
-with `jax.device_put_replicated`, whose sharding differs from the epoch's outputs); vnl's loop
-does not, so that mean favours vnl. The last epoch of each run, where neither compiles, is the
-like-for-like comparison: its ratio (means over repeats) is printed too. Target ratio vnl/brax
->= 0.95. The total wall time of each run (compile, evaluations and, for vnl, checkpoint writes
-included) and the size of vnl's checkpoints are printed too.
+`--compare stacks` (the default) runs `vnl train ENV --preset cpu --steps N --no-video` as a
+subprocess once per stack and round, alternating the stacks (`--rounds`; CPU speed drifts, so
+alternating and taking medians compares like with like). A stack is `PYTHON:TREE`: an interpreter
+(a virtual environment's, with its jax, MuJoCo and Brax) and the vnl source tree it runs
+(`python -m vnl` in that directory). Each stack first trains once untimed to fill its own
+compilation cache. A run's speed is the median `training/sps` over its epochs (each epoch is
+compiled before it runs, so none includes a compile); a stack's is the median over rounds. This is
+how the jax 0.8.2 stack (Python 3.11, the tree before the upgrade) was compared with jax 0.12:
 
-    .venv/bin/python benchmarks/ppo_throughput.py [--env ant_run] [--steps 600000]
+    .venv/bin/python benchmarks/ppo_throughput.py --envs ant_run rodent_run \
+        --stacks OLD_VENV/bin/python:OLD_TREE .venv/bin/python:. --rounds 3
+
+(Until 2026-11-26 this script compared `vnl train` with Brax's own `ppo.train` in one process;
+that needs jax < 0.10. Its results, measured on jax 0.8.2, are on docs/benchmarks/index.md.)
 
 `--compare physics` instead times `vnl train` with MuJoCo C physics (`impl: c`) against MJX
-(`impl: jax`) on the env's cpu preset, alternating the two (`--repeats` pairs). Each run's speed
-is the median `training/sps` over its epochs (compiled ahead of time, so no epoch includes a
-compile); the C/MJX ratio is the median of the per-pair ratios. Each run's seconds to its first
-training step (compiles included, no compilation cache) are printed too.
+(`impl: jax`) on the env's cpu preset, in this process, alternating the two (`--rounds` pairs).
+Each run's speed is the median `training/sps` over its epochs; the C/MJX ratio is the median of
+the per-pair ratios. Each run's seconds to its first training step (compiles included, no
+compilation cache) are printed too.
 
-    .venv/bin/python benchmarks/ppo_throughput.py --compare physics --env rodent_run --steps 100000
+    .venv/bin/python benchmarks/ppo_throughput.py --compare physics --envs rodent_run --steps 100000
 """
 
 from __future__ import annotations
 
 import argparse
 import statistics
+import sys
 import tempfile
 import time
 from pathlib import Path
 
 import jax
 
-from vnl.envs import registry
 from vnl.physics import c_physics
 from vnl.train import config as train_config
 from vnl.train import trainer
 
 
-def brax_direct(cfg: train_config.TrainConfig) -> list[float]:
-    from brax.training.agents.ppo import train as brax_ppo
-
-    env = registry.entry(cfg.env).factory(cfg.resolved_env_config())
-    sps: list[float] = []
-    brax_ppo.train(
-        environment=env,
-        progress_fn=lambda step, m: sps.append(float(m.get("training/sps", 0.0))),
-        **trainer.brax_kwargs(cfg),
-    )
-    return [s for s in sps if s > 0]
-
-
-def vnl_adapter(cfg: train_config.TrainConfig) -> list[float]:
-    from vnl.io import checkpoint
+def stack_run(python: str, tree: Path, env: str, steps: int, evals: int, cache: Path) -> list[float]:
+    """`vnl train ENV` with `python` in `tree` (a subprocess): the run's per-epoch training/sps."""
+    import json
+    import os
+    import subprocess
 
     with tempfile.TemporaryDirectory() as d:
-        result = trainer.train(cfg, Path(d) / "run", say=lambda s: None)
-        last = checkpoint.step_dir(result.run_dir, result.steps)
-        size = sum(f.stat().st_size for f in last.rglob("*") if f.is_file())
-        state = (last / checkpoint.TRAIN_STATE).stat().st_size
-        print(f"  vnl checkpoint: {size / 1e6:.1f} MB ({state / 1e6:.1f} MB train_state.npz)")
-    return [r["env_steps_per_sec"] for r in result.records if r["env_steps_per_sec"] > 0]
+        cmd = [python, "-m", "vnl", "train", env, "--preset", "cpu", "--steps", str(steps), "--no-video"]
+        cmd += ["--set", f"ppo.num_evals={evals}", "--out", f"{d}/run", "--compile-cache", str(cache)]
+        done = subprocess.run(
+            cmd, cwd=tree, capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(tree)}
+        )
+        if done.returncode:
+            sys.exit(f"failed ({done.returncode}): {' '.join(cmd)}\n{done.stdout[-2000:]}{done.stderr[-2000:]}")
+        records = [json.loads(line) for line in (Path(d) / "run" / "metrics.jsonl").read_text().splitlines()]
+    return [r["training/sps"] for r in records if r.get("training/sps")]
+
+
+def compare_stacks(envs: list[str], stacks: list[str], steps: int, evals: int, rounds: int) -> None:
+    """Alternating rounds of `stack_run` per env; prints each run and the medians."""
+    pairs = [(s.rsplit(":", 1)[0], Path(s.rsplit(":", 1)[1]).resolve()) for s in stacks]
+    with tempfile.TemporaryDirectory() as caches:
+        for env in envs:
+            print(f"{env}: cpu preset, {steps:,} steps, {evals - 1} epochs per run; env steps/s (median of epochs)")
+            speed: dict[int, list[float]] = {i: [] for i in range(len(pairs))}
+            for i, (python, tree) in enumerate(pairs):  # each stack's compilation cache, untimed
+                stack_run(python, tree, env, steps, evals, Path(caches) / f"{env}-{i}")
+            for r in range(rounds):
+                for i, (python, tree) in enumerate(pairs):
+                    sps = stack_run(python, tree, env, steps, evals, Path(caches) / f"{env}-{i}")
+                    speed[i].append(statistics.median(sps))
+                    print(
+                        f"  round {r + 1} stack {i} ({python} in {tree}): {', '.join(f'{x:,.0f}' for x in sps)}",
+                        flush=True,
+                    )
+            medians = [statistics.median(v) for v in speed.values()]
+            for i, m in enumerate(medians):
+                print(f"  stack {i}: {m:,.0f} env steps/s (median of {rounds} rounds)")
+            if len(medians) == 2:
+                print(f"  ratio stack 1 / stack 0: {medians[1] / medians[0]:.3f}", flush=True)
 
 
 def compare_physics(env: str, steps: int, repeats: int) -> None:
@@ -101,46 +120,18 @@ def compare_physics(env: str, steps: int, repeats: int) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser()
-    parser.add_argument("--env", default="ant_run")
+    parser.add_argument("--envs", nargs="+", default=["ant_run"])
     parser.add_argument("--steps", type=int, default=400_000)
-    parser.add_argument("--repeats", type=int, default=2, help="alternating pairs (CPU speed drifts)")
-    parser.add_argument("--compare", choices=["brax", "physics"], default="brax")
+    parser.add_argument("--evals", type=int, default=5, help="ppo.num_evals of each run (epochs + 1)")
+    parser.add_argument("--rounds", type=int, default=3, help="alternating rounds (CPU speed drifts)")
+    parser.add_argument("--compare", choices=["stacks", "physics"], default="stacks")
+    parser.add_argument("--stacks", nargs="+", default=[f"{sys.executable}:."], metavar="PYTHON:TREE")
     args = parser.parse_args()
     if args.compare == "physics":
-        compare_physics(args.env, args.steps, args.repeats)
+        for env in args.envs:
+            compare_physics(env, args.steps, args.rounds)
         return
-    cfg = train_config.build(
-        args.env,
-        "cpu",
-        flags={"ppo": {"num_timesteps": args.steps, "num_evals": 4}, "log": {"video": False, "progress": False}},
-    )
-    print(
-        f"device: {jax.devices()[0].platform} x{jax.device_count()}; {args.env}, "
-        f"{args.steps:,} steps, {cfg.ppo.num_envs} envs"
-    )
-    runners = (("brax ppo.train", brax_direct), ("vnl train", vnl_adapter))
-    means: dict[str, list[float]] = {label: [] for label, _ in runners}
-    last: dict[str, list[float]] = {label: [] for label, _ in runners}
-    for _ in range(args.repeats):
-        for label, fn in runners:
-            t = time.time()
-            sps = fn(cfg)
-            means[label].append(statistics.mean(sps[1:] or sps))
-            last[label].append(sps[-1])
-            print(
-                f"  {label}: per-eval steps/s {', '.join(f'{s:,.0f}' for s in sps)}; wall time {time.time() - t:.0f} s",
-                flush=True,
-            )
-    print(f"{'runner':<16} {'env steps/s (mean of repeats)':>30}")
-    for label, values in means.items():
-        print(f"{label:<16} {statistics.mean(values):>30,.0f}")
-    ratio = statistics.mean(means["vnl train"]) / statistics.mean(means["brax ppo.train"])
-    print(f"ratio vnl/brax: {ratio:.3f} (target >= 0.95)")
-    brax_last, vnl_last = statistics.mean(last["brax ppo.train"]), statistics.mean(last["vnl train"])
-    print(
-        f"last epoch (neither compiles): brax {brax_last:,.0f}, vnl {vnl_last:,.0f} env steps/s, "
-        f"ratio vnl/brax: {vnl_last / brax_last:.3f} (target >= 0.95)"
-    )
+    compare_stacks(args.envs, args.stacks, args.steps, args.evals, args.rounds)
 
 
 if __name__ == "__main__":

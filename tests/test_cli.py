@@ -1,6 +1,7 @@
 """The `vnl` command end to end (train -> eval -> render) and its one-line errors."""
 
 import json
+import os
 import re
 import signal
 import subprocess
@@ -39,12 +40,15 @@ def trained_run(tmp_path_factory):
     # MuJoCo C physics: nothing of MuJoCo is compiled by XLA (MJX's ant took 232 s here in CI).
     p = run("train", "ant_run", "--preset", "tiny", "--out", out, "--set", "log.video_seconds=0.5", *C_PHYSICS)
     assert p.returncode == 0, p.stdout + p.stderr
-    return out, p.stdout
+    return out, p.stdout, p.stderr
 
 
 @pytest.mark.slow
 def test_train_writes_a_complete_run_directory(trained_run):
-    out, stdout = trained_run
+    out, stdout, stderr = trained_run
+    # No line a user cannot act on: no jaxopt deprecation, no "Failed to import warp", no GLFW.
+    assert not stderr.strip(), stderr
+    assert not [line for line in stdout.splitlines() if not line.startswith("[vnl] ")], stdout
     assert (out / "config.yaml").is_file()
     assert (out / "learning_curve.png").stat().st_size > 1000
     records = metrics_io.read(out / "metrics.jsonl")
@@ -140,7 +144,7 @@ def test_eval_on_a_variant_of_the_task(trained_run, tmp_path):
 
 @pytest.mark.slow
 def test_step_best_loads_the_checkpoint_that_scored_highest(trained_run, tmp_path):
-    out, stdout = trained_run
+    out, stdout, _ = trained_run
     kept = set(checkpoint.steps(out))
     records = [r for r in metrics_io.read(out / "metrics.jsonl") if r["step"] in kept]
     best = max(records, key=lambda r: r["eval/episode_reward"])["step"]
@@ -272,6 +276,15 @@ def test_list_shows_every_env(capsys):
     assert re.search(r"^ant_run +27 +8 ", out, re.M), out  # observation and action widths
     assert re.search(r"^humanoid_run +336 +21 ", out, re.M), out
     assert "qpos[2:]" in out and "cameras:" in out
+
+
+def test_importing_vnl_and_making_an_env_prints_nothing_on_a_headless_machine():
+    """`import vnl; vnl.make(...)` without MUJOCO_GL or a display: no "Failed to import warp"
+    (mujoco-mjx's prints), no GLFW X11 warning (dm_control trying GLFW), no jaxopt deprecation."""
+    env = {k: v for k, v in os.environ.items() if k not in ("MUJOCO_GL", "DISPLAY", "WAYLAND_DISPLAY")}
+    code = "import vnl; e = vnl.make('ant_run'); print(e.observation_size)"
+    p = subprocess.run([sys.executable, "-W", "default", "-c", code], capture_output=True, text=True, env=env, cwd=ROOT)
+    assert p.returncode == 0 and p.stdout == "27\n" and not p.stderr, p.stdout + p.stderr
 
 
 def test_summary_minutes_are_the_run_s_wall_clock_across_a_resume():

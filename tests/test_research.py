@@ -77,48 +77,13 @@ def resumed(tmp_path_factory):
     return out, result
 
 
-@pytest.mark.skipif(
-    not hasattr(jax, "device_put_replicated"),
-    reason="brax 0.14.2's ppo.train needs jax.device_put_replicated (removed in jax 0.10); "
-    "test_loop_matches_frozen_brax_ppo_train compares with its frozen results",
-)
-@pytest.mark.parametrize("desired_kl", [None, 0.01])
-def test_loop_matches_brax_ppo_train(desired_kl):
-    """vnl's loop is Brax's PPO: same parameters and evaluations as `ppo.train` for one seed, with
-    a constant learning rate and with Brax's KL-adaptive one (`ppo.desired_kl`)."""
-    from brax.training.agents.ppo import train as brax_ppo
-
-    config = cfg(desired_kl=desired_kl)
-    env = registry.entry("test_point").factory(config.resolved_env_config())
-    brax_records = []
-    _, brax_params, _ = brax_ppo.train(
-        environment=env, progress_fn=lambda s, m: brax_records.append((s, m)), **trainer.brax_kwargs(config)
-    )
-    loop = PPOLoop(env, config)
-    state = loop.init(config.seed)
-    state, m0 = loop.evaluate(state, {})
-    ours = [(0, m0)]
-    while loop.env_steps(state) < config.ppo.num_timesteps:
-        state, tm = loop.epoch(state)
-        state, m = loop.evaluate(state, tm)
-        ours.append((loop.env_steps(state), m))
-    assert [s for s, _ in ours] == [s for s, _ in brax_records] == [0, K, 2 * K]
-    for a, b in zip(leaves(loop.params(state)), leaves(brax_params), strict=True):
-        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)
-    for (_, a), (_, b) in zip(ours, brax_records, strict=True):
-        np.testing.assert_allclose(a["eval/episode_reward"], b["eval/episode_reward"], rtol=1e-5)
-    if desired_kl is not None:  # the rate moved, as Brax moved it
-        np.testing.assert_allclose(
-            tm["training/learning_rate"], brax_records[-1][1]["training/learning_rate"], rtol=1e-5
-        )
-        assert tm["training/learning_rate"] != config.ppo.learning_rate
-
-
 @pytest.mark.parametrize("desired_kl", [None, 0.01])
 def test_loop_matches_frozen_brax_ppo_train(desired_kl):
-    """The same against `ppo.train`'s results frozen on jax 0.8.2 (tests/data/brax_ppo_reference_*.npz,
-    written by tests/data/make_brax_ppo_reference.py): brax 0.14.2's `ppo.train` needs
-    `jax.device_put_replicated`, gone in jax 0.10, while vnl's loop runs on any jax."""
+    """vnl's loop is Brax's PPO: the same parameters, evaluations and (with `ppo.desired_kl`, Brax's
+    KL-adaptive rate) learning rate as `ppo.train`, whose results were frozen on jax 0.8.2
+    (tests/data/brax_ppo_reference_*.npz, written by tests/data/make_brax_ppo_reference.py): brax
+    0.14.2's `ppo.train` needs `jax.device_put_replicated`, gone in jax 0.10, while vnl's loop runs on
+    any jax."""
     tag = "none" if desired_kl is None else f"kl{desired_kl}"
     with np.load(ROOT / "tests" / "data" / f"brax_ppo_reference_{tag}.npz") as z:
         ref = dict(z)

@@ -8,7 +8,13 @@ MuJoCo is loaded.
 
 from typing import Any
 
+from vnl import headless
 from vnl.errors import VnlError
+
+# Without a display and with MUJOCO_GL unset, dm_control tries GLFW at import and warns "X11: The
+# DISPLAY environment variable is missing", a line nobody can act on: pick EGL or OSMesa instead
+# (the user's MUJOCO_GL, or a display, are left alone). Done before anything imports MuJoCo.
+headless.choose_gl()
 
 _LAZY = {
     "Env": ("vnl.tasks.contract", "Env"),

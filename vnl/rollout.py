@@ -9,11 +9,11 @@ from typing import Any
 import jax
 import jax.numpy as jp
 import numpy as np
-from mujoco import mjx
 
 from vnl.errors import VnlError
 from vnl.io import video
 from vnl.policy import LoadedRun, Policy
+from vnl.quiet_mjx import mjx
 from vnl.tasks.contract import Env
 from vnl.vision.camera import Camera
 from vnl.vision.env import VisionEnv, default_camera

@@ -2,9 +2,12 @@
 tests/test_research.py::test_loop_matches_brax_ppo_train.
 
 brax 0.14.2's `ppo.train` calls `jax.device_put_replicated` (removed in jax 0.10), so it only runs
-on the old stack (jax 0.8.2). Run from the repository root with that stack:
+on the old stack (jax 0.8.2, Python 3.11) and with the tree it was made from (commit 2f09e3d, where
+`vnl.train.ppo.brax_kwargs` built ppo.train's arguments). It was run once, from that tree's root:
 
     .venv/bin/python tests/data/make_brax_ppo_reference.py
+
+and is kept as the record of how the reference was made; it does not run on today's tree.
 
 It writes, for desired_kl None and 0.01, tests/data/brax_ppo_reference_<none|kl0.01>.npz:
 `leaf_<i>` the final params' leaves in `jax.tree.leaves` order of (normalizer, policy, value),
@@ -45,7 +48,9 @@ def main() -> None:
         env = registry.entry("test_point").factory(config.resolved_env_config())
         records = []
         _, params, _ = brax_ppo.train(
-            environment=env, progress_fn=lambda s, m: records.append((s, m)), **ppo.brax_kwargs(config)
+            environment=env,
+            progress_fn=lambda s, m: records.append((s, m)),  # noqa: B023
+            **ppo.brax_kwargs(config),
         )
         arrays = {f"leaf_{i}": np.asarray(x) for i, x in enumerate(jax.tree.leaves(params))}
         arrays["steps"] = np.asarray([s for s, _ in records], np.int64)

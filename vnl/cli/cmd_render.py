@@ -12,7 +12,9 @@ from vnl.errors import VnlError
 def add(sub: Any) -> None:
     p = options.command(sub, "render", "video of a trained policy", run, check)
     p.add_argument("run_dir", nargs="?")
-    p.add_argument("--camera", help="camera name (see --list-cameras); default: one that frames the animal (walker/tracking)")
+    p.add_argument(
+        "--camera", help="camera name (see --list-cameras); default: one that frames the animal (walker/tracking)"
+    )
     p.add_argument("--out", help=".mp4 path (default <run_dir>/render_<camera>.mp4, render_default.mp4)")
     p.add_argument("--steps", type=options.POSITIVE, help="control steps (default: 10 s)")
     options.checkpoint_flag(p)

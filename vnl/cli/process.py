@@ -4,15 +4,14 @@ warnings print, XLA's log level, the compilation cache. The library never sets t
 from __future__ import annotations
 
 import argparse
-import contextlib
-import ctypes.util
-import io
 import logging
 import os
 import sys
 import warnings
 from pathlib import Path
 from typing import Any
+
+from vnl import headless
 
 
 def say(text: str) -> None:
@@ -29,14 +28,7 @@ def configure_process(mujoco_needed: bool = True) -> str | None:
     Returns the backend, or None when none is installed (training works; video is skipped).
     `mujoco_needed` False (plot, analyze) skips importing MuJoCo and JAX.
     """
-    gl = os.environ.get("MUJOCO_GL")
-    if not gl:
-        if ctypes.util.find_library("EGL"):
-            gl = "egl"
-        elif ctypes.util.find_library("OSMesa"):
-            gl = "osmesa"
-        if gl:
-            os.environ["MUJOCO_GL"] = gl
+    gl = headless.choose_gl(only_without_display=False)  # videos are rendered off-screen
     # Warnings are one line each (`vnl: warning: ...`), like the errors; third-party deprecation
     # chatter (jaxopt, brax's use of jax APIs) is not actionable here.
     warnings.showwarning = show_warning
@@ -52,15 +44,13 @@ def configure_process(mujoco_needed: bool = True) -> str | None:
     os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
     if not mujoco_needed:
         return gl
-    # mujoco.mjx prints "Failed to import warp" at import when the (GPU-only) Warp backend is not
-    # installed; that is expected here, so the first import happens with stdout captured.
-    with contextlib.redirect_stdout(io.StringIO()):
-        import mujoco.mjx  # noqa: F401
     # dm_control.composer turns every DeprecationWarning on when imported (its environment.py calls
     # warnings.simplefilter("always", DeprecationWarning)), ahead of the filter above: jaxopt's "no
     # longer maintained" (imported through brax.envs; brax still imports jaxopt, as ott-jax/ott#653
     # reports of it) then reached the console. Imported here, and the filter put back.
     import dm_control.composer  # noqa: F401
+
+    import vnl.quiet_mjx  # noqa: F401  (mujoco.mjx without its "Failed to import warp" lines)
 
     warnings.filterwarnings("ignore", category=DeprecationWarning)
     return gl

@@ -31,9 +31,9 @@ import jax
 import jax.numpy as jp
 import numpy as np
 from brax.envs.wrappers import training as brax_training
-from mujoco import mjx
 
 from vnl.errors import VnlError
+from vnl.quiet_mjx import mjx
 
 Range = tuple[float, float] | None
 RandomizationFn = Callable[[mjx.Model, jax.Array], tuple[mjx.Model, mjx.Model]]

@@ -17,11 +17,11 @@ from typing import Any
 
 import jax
 import mujoco
-from mujoco import mjx
 
 from vnl.physics import mjx_physics
 from vnl.physics.c_physics import CData, CPhysics, available_cores, resolve_threads
 from vnl.physics.mjx_physics import MjxPhysics
+from vnl.quiet_mjx import mjx
 
 IMPLS = ("jax", "warp", "c")
 Data = mjx.Data | CData

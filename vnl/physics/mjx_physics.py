@@ -6,7 +6,8 @@ from typing import Any
 
 import jax
 import jax.numpy as jp
-from mujoco import mjx
+
+from vnl.quiet_mjx import mjx
 
 
 class MjxPhysics:

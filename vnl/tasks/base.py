@@ -16,10 +16,10 @@ import jax.numpy as jp
 import mujoco
 import numpy as np
 from dm_control import mjcf
-from mujoco import mjx
 
 from vnl import physics
 from vnl.errors import VnlError
+from vnl.quiet_mjx import mjx
 from vnl.tasks.contract import Env
 from vnl.walkers import mjx_compat
 from vnl.walkers.base import Walker

@@ -8,10 +8,8 @@ side effects, so both can be jitted, vmapped and scanned.
 from __future__ import annotations
 
 import abc
-import contextlib
 import copy
 import functools
-import io
 from typing import Any
 
 import jax
@@ -19,12 +17,8 @@ import jax.numpy as jp
 import mujoco
 from flax import struct
 
-# mujoco.mjx prints "Failed to import warp" and "... mujoco_warp" at import when the GPU-only Warp
-# backend is not installed (mujoco/mjx/warp/__init__.py); vnl does not use it. (vnl.cli does the same.)
-with contextlib.redirect_stdout(io.StringIO()):
-    from mujoco import mjx
-
 from vnl import physics as physics_lib
+from vnl.quiet_mjx import mjx
 
 Observation = jax.Array | dict[str, jax.Array]
 

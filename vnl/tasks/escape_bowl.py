@@ -27,12 +27,12 @@ import jax
 import jax.numpy as jp
 import mujoco
 import numpy as np
-from mujoco import mjx
 
 from vnl import rewards
 from vnl.arenas import bowl as bowl_arena
 from vnl.errors import VnlError
 from vnl.heightfield import Grid
+from vnl.quiet_mjx import mjx
 from vnl.tasks.base import WalkerTask, WalkerTaskConfig, body_id, build_walker, compile_world, spawn_height
 from vnl.tasks.contract import State
 

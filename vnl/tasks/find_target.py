@@ -19,10 +19,10 @@ from typing import Literal
 import jax
 import jax.numpy as jp
 import mujoco
-from mujoco import mjx
 
 from vnl import physics
 from vnl.errors import VnlError
+from vnl.quiet_mjx import mjx
 from vnl.tasks.base import check_warp_available
 from vnl.tasks.contract import Env, State
 

@@ -24,12 +24,12 @@ from typing import Literal
 
 import jax
 import jax.numpy as jp
-from mujoco import mjx
 
 from vnl import physics
 from vnl.arenas import floor
 from vnl.errors import VnlError
 from vnl.physics import mjx_physics
+from vnl.quiet_mjx import mjx
 from vnl.tasks.base import (
     FootGeoms,
     WalkerTask,

@@ -33,11 +33,11 @@ from typing import Literal
 import jax
 import jax.numpy as jp
 import numpy as np
-from mujoco import mjx
 
 from vnl import rewards
 from vnl.arenas import gaps
 from vnl.errors import VnlError
+from vnl.quiet_mjx import mjx
 from vnl.tasks.base import (
     FootGeoms,
     WalkerTask,

@@ -21,49 +21,14 @@ from pathlib import Path
 from typing import Any
 
 from vnl import typed_config as config_lib
-from vnl.envs.wrappers import wrap_for_training
-from vnl.errors import VnlError
 from vnl.io import checkpoint
 from vnl.io import metrics as metrics_io
-from vnl.train import distributed, loop, networks, rundir, warm_start
+from vnl.train import distributed, loop, rundir, warm_start
 from vnl.train.config import TrainConfig, read_config, resume_config
 from vnl.train.session import Finish, Progress, Restored, Session, TrainResult
 from vnl.train.worlds import Worlds
 
-__all__ = ["TrainResult", "brax_kwargs", "resume", "resume_config", "train"]
-
-
-def brax_kwargs(config: TrainConfig) -> dict[str, Any]:
-    """Keyword arguments of `brax.training.agents.ppo.train.train` for `config` (all but the
-    environment and the callbacks)."""
-    p = config.ppo
-    if p.learning_rate_final is not None:
-        raise VnlError("Brax's ppo.train has no linear learning-rate decay; unset ppo.learning_rate_final")
-    return dict(
-        num_timesteps=p.num_timesteps,
-        wrap_env_fn=wrap_for_training,
-        num_envs=p.num_envs,
-        episode_length=config.episode_length(),
-        action_repeat=p.action_repeat,
-        learning_rate=p.learning_rate,
-        entropy_cost=p.entropy_cost,
-        discounting=p.discounting,
-        unroll_length=p.unroll_length,
-        batch_size=p.batch_size,
-        num_minibatches=p.num_minibatches,
-        num_updates_per_batch=p.num_updates_per_batch,
-        normalize_observations=p.normalize_observations,
-        reward_scaling=p.reward_scaling,
-        clipping_epsilon=p.clipping_epsilon,
-        gae_lambda=p.gae_lambda,
-        max_grad_norm=p.max_grad_norm,
-        network_factory=networks.network_factory(config.network),
-        seed=config.seed,
-        num_evals=max(p.num_evals, 2),
-        num_eval_envs=p.num_eval_envs,
-        deterministic_eval=p.deterministic_eval,
-        **({} if p.desired_kl is None else {"learning_rate_schedule": "ADAPTIVE_KL", "desired_kl": p.desired_kl}),
-    )
+__all__ = ["TrainResult", "resume", "resume_config", "train"]
 
 
 def train(

@@ -31,10 +31,10 @@ import jax
 import jax.numpy as jp
 import mujoco
 import numpy as np
-from mujoco import mjx
 
 from vnl.errors import VnlError
 from vnl.heightfield import Grid
+from vnl.quiet_mjx import mjx
 
 G = mujoco.mjtGeom
 PRIMITIVES = (G.mjGEOM_PLANE, G.mjGEOM_SPHERE, G.mjGEOM_CAPSULE, G.mjGEOM_ELLIPSOID, G.mjGEOM_CYLINDER, G.mjGEOM_BOX)

@@ -27,9 +27,9 @@ import functools
 import mujoco
 import numpy as np
 from dm_control import mjcf
-from mujoco import mjx
 
 from vnl.errors import VnlError
+from vnl.quiet_mjx import mjx
 
 _T = mujoco.mjtGeom
 PROXY_GROUP = 3
