@@ -64,7 +64,7 @@ def test_train_writes_a_complete_run_directory(trained_run):
 
 @pytest.mark.slow
 def test_eval_prints_table_and_writes_json(trained_run, tmp_path):
-    out, _ = trained_run
+    out, *_ = trained_run
     p = run("eval", out, "--episodes", "3", "--steps", "20", "--out", tmp_path / "e.json")
     assert p.returncode == 0, p.stderr
     summary = json.loads((tmp_path / "e.json").read_text())
@@ -89,7 +89,7 @@ def test_eval_on_a_variant_of_the_task(trained_run, tmp_path):
     """`--set env_config.*` evaluates the run's policy on a variant of its task (here without the
     healthy bonus: that reward term is 0, the others as before); other keys, and a variant whose
     observation the policy cannot read, are one-line errors."""
-    out, _ = trained_run
+    out, *_ = trained_run
     p = run(
         "eval",
         out,
@@ -166,7 +166,7 @@ def test_step_best_loads_the_checkpoint_that_scored_highest(trained_run, tmp_pat
 
 @pytest.mark.slow
 def test_render_any_named_camera(trained_run, tmp_path):
-    out, _ = trained_run
+    out, *_ = trained_run
     p = run("render", "--list-cameras", out)
     assert p.returncode == 0 and "walker/back" in p.stdout and "walker/egocentric" in p.stdout
     p = run(
@@ -259,7 +259,7 @@ def test_user_errors_are_one_line_exit_2(argv, words, capsys):
 
 @pytest.mark.slow
 def test_missing_checkpoint_and_unknown_camera(trained_run, tmp_path, capsys):
-    out, _ = trained_run
+    out, *_ = trained_run
     empty = tmp_path / "empty"
     empty.mkdir()
     (empty / "config.yaml").write_text((out / "config.yaml").read_text())
