@@ -31,6 +31,7 @@ import time
 from pathlib import Path
 
 READY = "[vnl] compiled and ready"
+COMPILING = "[vnl] compiling"  # everything before it is host work: imports, config, worlds, run directory
 BUILD = "[bench] world build"
 # Runs vnl's CLI with `Env.__init__` wrapped to print BUILD (vnl.tasks.contract since 2026-11-26,
 # vnl.env before), whichever tree is first on sys.path (the working directory).
@@ -53,20 +54,22 @@ sys.exit(main())
 """
 
 
-def seconds_to_ready(cmd: list[str], cwd: Path, timeout: float) -> tuple[float, int]:
-    """(seconds from launch to the ready line of `vnl train`, worlds built by then); SIGKILLed
-    right after."""
+def seconds_to_ready(cmd: list[str], cwd: Path, timeout: float) -> tuple[float, int, float]:
+    """(seconds from launch to the ready line of `vnl train`, worlds built by then, seconds to its
+    "compiling" line: the host's part, before any XLA work); SIGKILLed right after."""
     t = time.perf_counter()
     # BOOT imports JAX before the CLI sets XLA's log level: set it here (as the CLI would).
     env = {"TF_CPP_MIN_LOG_LEVEL": "3", **os.environ, "PYTHONPATH": str(cwd)}
     proc = subprocess.Popen(cmd, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
-    lines, builds = [], 0
+    lines, builds, host = [], 0, float("nan")
     try:
         for line in proc.stdout:
             lines.append(line)
             builds += line.startswith(BUILD)
+            if line.startswith(COMPILING):
+                host = time.perf_counter() - t
             if line.startswith(READY):
-                return time.perf_counter() - t, builds
+                return time.perf_counter() - t, builds, host
             if time.perf_counter() - t > timeout:
                 break
     finally:
@@ -91,7 +94,7 @@ def compare_trees(args: argparse.Namespace, tmp: Path) -> None:
     print("training step (warm compilation cache) and worlds built, alternating rounds; nothing else timed")
     runs = 0
 
-    def once(i: int) -> tuple[float, int]:
+    def once(i: int) -> tuple[float, int, float]:
         nonlocal runs
         runs += 1
         cmd = train_command(args, tmp / f"run-{runs}", tmp / f"cache-{i}", None)
@@ -100,13 +103,21 @@ def compare_trees(args: argparse.Namespace, tmp: Path) -> None:
     for i in range(len(trees)):  # warm each tree's cache (untimed)
         once(i)
     times: dict[int, list[float]] = {i: [] for i in range(len(trees))}
+    hosts: dict[int, list[float]] = {i: [] for i in range(len(trees))}
     for r in range(args.rounds):
         for i, tree in enumerate(trees):
-            seconds, builds = once(i)
+            seconds, builds, host = once(i)
             times[i].append(seconds)
-            print(f"round {r + 1}  {tree}: {seconds:6.1f} s, {builds} world builds", flush=True)
+            hosts[i].append(host)
+            print(
+                f"round {r + 1}  {tree}: {seconds:6.1f} s to ready, {host:5.1f} s to compiling, {builds} world builds"
+            )
     for i, tree in enumerate(trees):
-        print(f"median {tree}: {statistics.median(times[i]):.1f} s over {args.rounds} rounds")
+        ready, host = statistics.median(times[i]), statistics.median(hosts[i])
+        print(
+            f"median {tree}: {ready:.1f} s to the first training step, {host:.1f} s before compiling "
+            f"({args.rounds} rounds)"
+        )
 
 
 def main() -> None:
@@ -128,8 +139,8 @@ def main() -> None:
         root = Path(__file__).resolve().parents[1]
         for impl in args.impls:
             cache = Path(tmp) / f"cache-{impl}"
-            cold, _ = seconds_to_ready(train_command(args, Path(tmp) / f"{impl}-1", cache, impl), root, args.timeout)
-            warm, n = seconds_to_ready(train_command(args, Path(tmp) / f"{impl}-2", cache, impl), root, args.timeout)
+            cold, _, _ = seconds_to_ready(train_command(args, Path(tmp) / f"{impl}-1", cache, impl), root, args.timeout)
+            warm, n, _ = seconds_to_ready(train_command(args, Path(tmp) / f"{impl}-2", cache, impl), root, args.timeout)
             print(f"{impl:<8} {cold:>11.1f} {warm:>11.1f} {n:>13}", flush=True)
 
 
