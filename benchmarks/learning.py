@@ -26,7 +26,8 @@ date, the vnl commit and the command; and a frame of seed 0's trained policy mid
 Task measures (eval metrics, per evaluation episode): run tasks: mean forward velocity (m/s) and
 the fraction of the episode upright; gaps: gaps crossed and distance along the corridor (m); bowl:
 the fraction of episodes that left the bowl and the seconds spent in it (the whole episode for
-those that did not leave).
+those that did not leave); cue_memory: the fraction of episodes that end at the cued target, and
+that end nearer it than the other (chance 0.5).
 """
 
 from __future__ import annotations
@@ -54,10 +55,16 @@ MEASURES = {
         ("escaped", "eval/episode_measure/escaped", ".2f"),
         ("time in bowl (s)", "eval/episode_measure/time_in_bowl", ".1f"),
     ],
+    "memory": [
+        ("success", "eval/episode_measure/success", ".2f"),
+        ("correct choice", "eval/episode_measure/choice_correct", ".2f"),
+    ],
 }
 
 
 def task_of(env: str) -> str:
+    if env == "cue_memory":
+        return "memory"
     return "gaps" if env.endswith("run_gaps") else "bowl" if env.endswith("escape_bowl") else "run"
 
 

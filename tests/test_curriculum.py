@@ -373,7 +373,7 @@ def test_compare_networks_on_the_same_episodes(parent, parent_seed1, child, tmp_
     obs, mask = ds["observation"].values, ds["active"].values > 0
     acts = []
     for run_dir in (parent, child):
-        activity = record.network_activity(load_run(run_dir), obs, jax.random.PRNGKey(0))
+        activity, _ = record.network_activity(load_run(run_dir), obs, jax.random.PRNGKey(0))
         acts.append({k: np.asarray(v).reshape(2, 20, -1)[mask] for k, v in activity.items() if k != "action"})
     pair = result["pairs"][1]  # parent vs child
     assert pair["layers_a"][0] == "policy_hidden_0"

@@ -294,11 +294,10 @@ def observations(ds: Any) -> tuple[np.ndarray, np.ndarray]:
 def network(source: Source, obs: np.ndarray, mask: np.ndarray, name: str) -> Network:
     """The activity of every layer of `source`'s policy and value networks on `obs` (episodes,
     time, width), at the active steps: name -> (active steps, units)."""
-    import jax
 
     from vnl.io.plot import group_key
     from vnl.policy import load_run
-    from vnl.record import network_activity
+    from vnl.record import episode_activity
 
     run = load_run(source.run_dir, step=source.step)
     width = run.env.observation_size
@@ -309,7 +308,7 @@ def network(source: Source, obs: np.ndarray, mask: np.ndarray, name: str) -> Net
             f"{source.run_dir} ({run.config.env}) takes observations of width {width}, the shared recording has "
             f"{obs.shape[-1]}; compare networks of envs with the same observation layout"
         )
-    activity = jax.device_get(network_activity(run, obs.astype(np.float32), jax.random.PRNGKey(0)))
+    activity = episode_activity(run, obs)
     layers = {}
     for k in sorted(activity, key=_layer_order):
         if k.startswith(("policy_", "value_")):

@@ -1,4 +1,10 @@
-"""Loading a trained run: its config, env and policy."""
+"""Loading a trained run: its config, env and policy.
+
+A feed-forward run's policy is a function `policy(obs, rng) -> action`. A recurrent run's
+(`network.core`) is a `RecurrentPolicy`: `state = policy.initial_state(batch_shape)` at the start
+of an episode, then `action, state = policy.step(obs, state, rng)` every control step. `stateful`
+gives both kinds that second form, which is what rollouts, recordings and videos use.
+"""
 
 from __future__ import annotations
 
@@ -14,9 +20,47 @@ from vnl.io import checkpoint
 from vnl.tasks.contract import Env
 from vnl.train.config import TrainConfig, read_config, task_variant
 from vnl.train.networks import make_network
+from vnl.train.recurrent import make_recurrent_networks
 from vnl.train.worlds import trained_config
 
 Policy = Callable[[jax.Array, jax.Array], jax.Array]
+
+
+@dataclasses.dataclass(frozen=True)
+class RecurrentPolicy:
+    """A trained recurrent policy (jit-able): `initial_state(batch_shape)` -> the core's state at
+    the start of an episode (zeros: (c, h) for an LSTM, (h,) for a GRU, each batch_shape +
+    (core_size,)); `step(obs (..., obs), state, rng) -> (action (..., actions), state)`."""
+
+    networks: Any  # vnl.train.recurrent.RecurrentPPONetworks
+    params: Any  # (normalizer, policy, value) params
+    deterministic: bool = True
+
+    def initial_state(self, batch_shape: tuple[int, ...] = ()) -> tuple[jax.Array, ...]:
+        return self.networks.policy_network.initial_carry(tuple(batch_shape))
+
+    def step(self, obs: Any, state: tuple[jax.Array, ...], rng: jax.Array) -> tuple[jax.Array, Any]:
+        from vnl.train.recurrent_ppo import sample
+
+        normalizer, params, _ = self.params
+        no_reset = jax.numpy.zeros(state[0].shape[:-1])
+        logits, state, _ = self.networks.policy_network.step(normalizer, params, obs, state, no_reset)
+        action, _ = sample(self.networks.parametric_action_distribution, logits, rng, self.deterministic)
+        return action, state
+
+    def __call__(self, obs: Any, rng: jax.Array) -> jax.Array:
+        raise VnlError(
+            "this run's policy is recurrent: carry its state, `state = policy.initial_state(batch_shape)` at the "
+            "start of an episode and `action, state = policy.step(obs, state, rng)` each step"
+        )
+
+
+def stateful(policy: Policy | RecurrentPolicy) -> tuple[Callable[..., Any], Callable[..., Any]]:
+    """(initial_state(batch_shape), step(obs, state, rng) -> (action, state)) for either kind of
+    policy (a feed-forward policy's state is `()`)."""
+    if isinstance(policy, RecurrentPolicy):
+        return policy.initial_state, policy.step
+    return (lambda batch_shape=(): ()), (lambda obs, state, rng: (policy(obs, rng), state))
 
 
 @dataclasses.dataclass
@@ -26,16 +70,19 @@ class LoadedRun:
     run_dir: Path
     config: TrainConfig
     env: Env
-    policy: Policy
+    policy: Policy | RecurrentPolicy
     step: int
     params: Any
     env_set: tuple[str, ...] = ()  # the task variant (`env_config.KEY=VALUE`) the env was built with
 
 
-def make_policy_fn(config: TrainConfig, env: Env, params: Any, deterministic: bool) -> Policy:
-    """`policy(obs, rng) -> action` from Brax PPO params, with the run's network sizes."""
+def make_policy_fn(config: TrainConfig, env: Env, params: Any, deterministic: bool) -> Policy | RecurrentPolicy:
+    """`policy(obs, rng) -> action` from Brax PPO params, with the run's network sizes; a
+    `RecurrentPolicy` for a run with `network.core`."""
     from brax.training.agents.ppo import networks as ppo_networks
 
+    if config.network.core is not None:
+        return RecurrentPolicy(make_recurrent_networks(config, env), params, deterministic)
     network = make_network(config, env)
     inference = ppo_networks.make_inference_fn(network)(params, deterministic=deterministic)
 
@@ -115,8 +162,9 @@ def best_checkpoint(run_dir: str | Path) -> tuple[int, str, float]:
     return found[0], metric, found[1]
 
 
-def load_policy(run_dir: str | Path, deterministic: bool = True, step: int | None = None) -> Policy:
-    """The policy of a trained run: `policy(obs, rng) -> action`.
+def load_policy(run_dir: str | Path, deterministic: bool = True, step: int | None = None) -> Policy | RecurrentPolicy:
+    """The policy of a trained run: `policy(obs, rng) -> action`, or for a recurrent run
+    (`network.core`) a `RecurrentPolicy` (`initial_state`, `step(obs, state, rng)`).
 
     Args:
       run_dir: a directory written by `vnl train`.

@@ -33,6 +33,7 @@ import numpy as np
 from vnl.errors import VnlError
 from vnl.policy import LoadedRun
 from vnl.train.networks import ACTIVATIONS, make_network
+from vnl.train.recurrent import make_recurrent_networks
 
 
 def _dense_outputs(apply: Any, *args: Any) -> tuple[jax.Array, dict[str, jax.Array]]:
@@ -52,12 +53,20 @@ def _dense_outputs(apply: Any, *args: Any) -> tuple[jax.Array, dict[str, jax.Arr
     return out, captured
 
 
-def network_activity(run: LoadedRun, obs: jax.Array, key: jax.Array, deterministic: bool = True) -> dict[str, Any]:
+def network_activity(
+    run: LoadedRun, obs: jax.Array, key: jax.Array, deterministic: bool = True, core: Any = ()
+) -> tuple[dict[str, Any], Any]:
     """The action chosen for `obs` (..., obs_size) and every layer's activity on the way.
 
-    Returns {"action": (..., act), "policy_hidden_<i>": (..., units), "policy_output": ...,
-    "value_hidden_<i>": ..., "value_output": (...,)}. The action equals `run.policy(obs, key)`.
+    Returns ({"action": (..., act), "policy_hidden_<i>": (..., units), "policy_output": ...,
+    "value_hidden_<i>": ..., "value_output": (...,)}, the core state after this step). The action
+    equals the run's policy's. A recurrent run (`network.core`) takes and returns its cores' state
+    `core` ({"policy": carry, "value": carry}; `initial_core`) and adds `<net>_core_h` (and
+    `<net>_core_c` for an LSTM): the core's state after reading `obs`, from which the step's
+    output (and action) is computed.
     """
+    if run.config.network.core is not None:
+        return _recurrent_activity(run, obs, key, deterministic, core)
     network = make_network(run.config, run.env)
     normalizer, policy_params, value_params = run.params
     act = ACTIVATIONS[run.config.network.activation]
@@ -74,12 +83,69 @@ def network_activity(run: LoadedRun, obs: jax.Array, key: jax.Array, determinist
             out[f"{prefix}_{name}"] = act(dense[name])
         out[f"{prefix}_output"] = dense[names[-1]] if prefix == "policy" else result
         if prefix == "policy":
-            dist = network.parametric_action_distribution
-            if deterministic:
-                out["action"] = dist.mode(result)
-            else:
-                out["action"] = dist.postprocess(dist.sample_no_postprocessing(result, key))
-    return out
+            out["action"] = _action(network.parametric_action_distribution, result, key, deterministic)
+    return out, core
+
+
+def _action(dist: Any, logits: Any, key: jax.Array, deterministic: bool) -> jax.Array:
+    return dist.mode(logits) if deterministic else dist.postprocess(dist.sample_no_postprocessing(logits, key))
+
+
+def episode_activity(run: LoadedRun, obs: np.ndarray) -> dict[str, np.ndarray]:
+    """Every layer's activity (and the deterministic action) on recorded episodes' observations
+    `obs` (episodes, time, width): name -> (episodes, time, ...). A recurrent run's cores start
+    each episode at their initial state and carry it through the episode's steps."""
+    obs = jp.asarray(obs, jp.float32)
+    key = jax.random.PRNGKey(0)
+    if run.config.network.core is None:
+        activity, _ = network_activity(run, obs, key)
+        return jax.device_get(activity)
+
+    def body(core: Any, o: jax.Array) -> tuple[Any, Any]:
+        activity, core = network_activity(run, o, key, True, core)
+        return core, activity
+
+    _, activity = jax.lax.scan(body, initial_core(run, (obs.shape[0],)), jp.swapaxes(obs, 0, 1))
+    return {k: _et(v) for k, v in jax.device_get(activity).items()}
+
+
+def initial_core(run: LoadedRun, batch_shape: tuple[int, ...]) -> Any:
+    """The cores' state at the start of an episode (a recurrent run), else ()."""
+    if run.config.network.core is None:
+        return ()
+    from vnl.train.recurrent_ppo import zero_carry
+
+    return zero_carry(make_recurrent_networks(run.config, run.env), batch_shape)
+
+
+def _recurrent_activity(
+    run: LoadedRun, obs: jax.Array, key: jax.Array, deterministic: bool, core: Any
+) -> tuple[dict[str, Any], Any]:
+    """`network_activity` of a recurrent run: the encoder's layers (`hidden_<i>`, intercepted),
+    the core's new state, the head's output."""
+    networks = make_recurrent_networks(run.config, run.env)
+    normalizer, policy_params, value_params = run.params
+    act = ACTIVATIONS[run.config.network.activation]
+    no_reset = jp.zeros(core["policy"][0].shape[:-1])
+    out: dict[str, Any] = {}
+    new_core = {}
+    for prefix, net, params in (
+        ("policy", networks.policy_network, policy_params),
+        ("value", networks.value_network, value_params),
+    ):
+        (result, carry, _), dense = _dense_outputs(net.step, normalizer, params, obs, core[prefix], no_reset)
+        hidden = sorted((n for n in dense if n.startswith("hidden_")), key=lambda n: int(n.split("_")[-1]))
+        for name in hidden:
+            out[f"{prefix}_{name}"] = act(dense[name])
+        out[f"{prefix}_core_h"] = carry[-1]
+        if len(carry) == 2:
+            out[f"{prefix}_core_c"] = carry[0]
+        out[f"{prefix}_output"] = result[0] if isinstance(result, tuple) else result
+        new_core[prefix] = carry
+        if prefix == "policy":
+            out["action"] = _action(networks.parametric_action_distribution, result, key, deterministic)
+    out["value_output"] = jp.squeeze(out["value_output"], -1)
+    return out, new_core
 
 
 def record(run: LoadedRun, episodes: int, steps: int, seed: int = 0, deterministic: bool = True) -> Any:
@@ -101,8 +167,8 @@ def _rollout(run: LoadedRun, episodes: int, steps: int, seed: int, deterministic
         state = jax.vmap(env.reset)(jax.random.split(k_reset, episodes))
 
         def body(carry: Any, key: jax.Array) -> Any:
-            state, alive = carry
-            activity = network_activity(run, state.obs, key, deterministic)
+            state, core, alive = carry
+            activity, core = network_activity(run, state.obs, key, deterministic, core)
             nxt = jax.vmap(env.step)(state, activity["action"])
             out = {
                 "observation": state.obs,
@@ -116,10 +182,10 @@ def _rollout(run: LoadedRun, episodes: int, steps: int, seed: int, deterministic
                 "metrics": nxt.metrics,
                 **activity,
             }
-            return (nxt, alive * (1.0 - nxt.done)), out
+            return (nxt, core, alive * (1.0 - nxt.done)), out
 
         keys = jax.random.split(k_act, steps)
-        _, out = jax.lax.scan(body, (state, jp.ones((episodes,))), keys)
+        _, out = jax.lax.scan(body, (state, initial_core(run, (episodes,)), jp.ones((episodes,))), keys)
         return out
 
     return jax.device_get(go(jax.random.PRNGKey(seed)))

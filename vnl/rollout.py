@@ -12,7 +12,7 @@ import numpy as np
 
 from vnl.errors import VnlError
 from vnl.io import video
-from vnl.policy import LoadedRun, Policy
+from vnl.policy import LoadedRun, Policy, RecurrentPolicy, stateful
 from vnl.quiet_mjx import mjx
 from vnl.tasks.contract import Env
 from vnl.vision.camera import Camera
@@ -46,8 +46,10 @@ class Rollout:
         return self.active.sum(axis=1)
 
 
-def rollout(env: Env, policy: Policy, rng: jax.Array, episodes: int, steps: int) -> Rollout:
-    """Runs `episodes` episodes in parallel for `steps` control steps (no auto-reset)."""
+def rollout(env: Env, policy: Policy | RecurrentPolicy, rng: jax.Array, episodes: int, steps: int) -> Rollout:
+    """Runs `episodes` episodes in parallel for `steps` control steps (no auto-reset); a
+    recurrent policy's state starts at its initial state."""
+    initial_state, act = stateful(policy)
 
     @jax.jit
     def run(rng: jax.Array) -> Any:
@@ -55,16 +57,17 @@ def rollout(env: Env, policy: Policy, rng: jax.Array, episodes: int, steps: int)
         state = jax.vmap(env.reset)(jax.random.split(k_reset, episodes))
 
         def body(carry: Any, key: jax.Array) -> Any:
-            state, alive = carry
-            action = policy(state.obs, key)
+            state, core, alive = carry
+            action, core = act(state.obs, core, key)
             nxt = jax.vmap(env.step)(state, action)
             active = alive
             alive = alive * (1.0 - nxt.done)
             out = (nxt.data.qpos, nxt.data.mocap_pos, nxt.reward, nxt.done, active, nxt.metrics)
-            return (nxt, alive), out
+            return (nxt, core, alive), out
 
         keys = jax.random.split(k_act, steps)
-        (_, _), (qpos, mocap, reward, done, active, metrics) = jax.lax.scan(body, (state, jp.ones((episodes,))), keys)
+        start = (state, initial_state((episodes,)), jp.ones((episodes,)))
+        _, (qpos, mocap, reward, done, active, metrics) = jax.lax.scan(body, start, keys)
         return state.data.qpos, state.data.mocap_pos, state.metrics, qpos, mocap, reward, done, active, metrics
 
     qpos0, mocap0, metrics0, qpos, mocap, reward, done, active, metrics = jax.device_get(run(rng))

@@ -10,7 +10,7 @@ from typing import Any
 
 from vnl import typed_config as config_lib
 from vnl.errors import VnlError
-from vnl.tasks import escape_bowl, find_target, run, run_gaps
+from vnl.tasks import cue_memory, escape_bowl, find_target, run, run_gaps
 from vnl.tasks.contract import Env
 from vnl.vision.env import VisionConfig, VisionEnv
 
@@ -53,6 +53,11 @@ _REGISTRY: dict[str, Entry] = {
         find_target.FindTarget,
         find_target.FIND_TARGET,
         "A ball rolls to a red target placed at random; only its egocentric camera can see it (train with --vision).",
+    ),
+    "cue_memory": Entry(
+        cue_memory.CueMemory,
+        cue_memory.CUE_MEMORY,
+        "A ball is told which of two targets pays, waits out a delay without the cue, then rolls to it (needs memory).",
     ),
     # Tasks for any walker: set walker=ant|rodent or walker_xml=path/to/model.xml, root_body=...
     "run": Entry(run.Run, run.RODENT_RUN, "Run task for any walker (walker=..., or walker_xml=FILE root_body=NAME)."),

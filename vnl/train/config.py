@@ -137,8 +137,15 @@ class NetworkConfig:
     distribution_type: Literal["tanh_normal", "normal"] = "tanh_normal"
     noise_std_type: Literal["log", "scalar"] = "log"
     init_noise_std: float = 1.0
+    # A recurrent core between the encoder and the heads: an LSTM or a GRU of `core_size` units in
+    # the policy and in the value network, each its own (vnl.train.recurrent); null: feed-forward
+    # MLPs (docs/how-to/recurrent.md).
+    core: Literal["lstm", "gru"] | None = None
+    core_size: int = 128
 
     def validate(self) -> None:
+        if self.core_size < 1:
+            raise VnlError(f"network.core_size must be >= 1, got {self.core_size}")
         if not self.init_noise_std > 0:
             raise VnlError(f"network.init_noise_std must be > 0, got {self.init_noise_std}")
         for key in (

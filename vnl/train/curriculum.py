@@ -31,6 +31,7 @@ import numpy as np
 from vnl.errors import VnlError
 from vnl.train.config import TrainConfig
 from vnl.train.loop import LoopState, PPOLoop, epoch_length
+from vnl.train.recurrent_ppo import make_ppo_loop
 from vnl.train.worlds import Worlds
 
 STAGE_KEY = ".curriculum_stage"  # the stage index stored with a checkpoint's training state
@@ -43,7 +44,7 @@ def make_loop(
     """The PPO loop of a run: `PPOLoop` on the run's env, or a `CurriculumLoop` over the stages'
     envs when `config` has stages (`worlds` holds them, built once)."""
     if not config.curriculum:
-        return PPOLoop(worlds.env(0), config, training_steps_per_epoch)
+        return make_ppo_loop(worlds.env(0), config, training_steps_per_epoch)
     return CurriculumLoop(config, worlds, training_steps_per_epoch, say)
 
 
@@ -78,7 +79,7 @@ class CurriculumLoop:
         self.say = say
         self.ends = stage_ends(config)
         steps = training_steps_per_epoch or epoch_length(config)
-        self.loops = [PPOLoop(worlds.env(i), config.stage(i), steps) for i in range(len(self.ends))]
+        self.loops = [make_ppo_loop(worlds.env(i), config.stage(i), steps) for i in range(len(self.ends))]
         self._check_layouts()
         first = self.loops[0]
         self.stage = 0

@@ -27,7 +27,6 @@ checkpoint has the layout of a single-process run.
 from __future__ import annotations
 
 import functools
-import math
 import time
 from typing import Any
 
@@ -49,6 +48,7 @@ from vnl.envs.wrappers import wrap_for_training
 from vnl.errors import VnlError
 from vnl.train.config import TrainConfig
 from vnl.train.networks import make_network
+from vnl.train.schedules import KL_RATE_RANGE, current_learning_rate, epoch_length, learning_rate
 
 AXIS = "i"  # the pmap axis over local devices
 
@@ -95,36 +95,6 @@ def check_devices(config: TrainConfig) -> None:
             f"ppo.num_envs ({p.num_envs}) and ppo.batch_size ({p.batch_size}) must be multiples of the "
             f"number of devices ({n})"
         )
-
-
-def epoch_length(config: TrainConfig) -> int:
-    """Training steps per epoch (between two evaluations), as Brax computes it."""
-    p = config.ppo
-    return math.ceil(p.num_timesteps / (max(p.num_evals - 1, 1) * p.env_steps_per_training_step))
-
-
-KL_RATE_RANGE = (1e-5, 1e-2)  # the learning rate's bounds with `ppo.desired_kl` (Brax's defaults)
-
-
-def learning_rate(config: TrainConfig) -> float | optax.Schedule:
-    """`ppo.learning_rate`, or with `ppo.learning_rate_final` a linear schedule from it to the
-    final rate over the optimizer updates of `ppo.learning_rate_decay_steps` env steps (default
-    `num_timesteps`). A function of Adam's update count, which checkpoints keep, so a resumed
-    run follows the same schedule."""
-    p = config.ppo
-    if p.learning_rate_final is None:
-        return p.learning_rate
-    training_steps = math.ceil((p.learning_rate_decay_steps or p.num_timesteps) / p.env_steps_per_training_step)
-    updates = training_steps * p.num_updates_per_batch * p.num_minibatches
-    return optax.linear_schedule(p.learning_rate, p.learning_rate_final, updates)
-
-
-def current_learning_rate(rate: float | optax.Schedule, opt_state: Any) -> jax.Array:
-    """The rate the next update of `opt_state` uses: () float32."""
-    if not callable(rate):
-        return jp.array(rate, jp.float32)
-    _, count = optax.tree_utils.tree_get_all_with_path(opt_state, "count")[0]
-    return jp.asarray(rate(count), jp.float32)
 
 
 def run_evaluation(
@@ -181,8 +151,7 @@ class PPOLoop:
         self.env_steps_per_training_step = p.env_steps_per_training_step
         self.env_steps_per_epoch = self.training_steps_per_epoch * self.env_steps_per_training_step
 
-        self.network = make_network(config, env)
-        self.make_policy = ppo_networks.make_inference_fn(self.network)
+        self.network = self._make_network(env)
         self.learning_rate = learning_rate(config)
         if p.desired_kl is None:
             adam = optax.adam(learning_rate=self.learning_rate)
@@ -191,7 +160,29 @@ class PPOLoop:
         self.optimizer = (
             optax.chain(optax.clip_by_global_norm(p.max_grad_norm), adam) if p.max_grad_norm is not None else adam
         )
-        loss_fn = functools.partial(
+        self._loss_and_pgrad = gradients.loss_and_pgrad(self._loss_fn(), pmap_axis_name=AXIS, has_aux=True)
+        self._epoch = jax.pmap(self._training_epoch, axis_name=AXIS, donate_argnums=(0, 1))
+        self._epoch_exec: Any = None  # the epoch compiled ahead of time (`compile`)
+        self._reset = jax.pmap(self.env.reset, axis_name=AXIS)
+        self._identity = jax.pmap(lambda x: x, axis_name=AXIS)
+        eval_env = wrap_for_training(
+            env, episode_length=self.episode_length, action_repeat=p.action_repeat, randomization_fn=eval_models
+        )
+        self._evaluator = self._make_evaluator(eval_env)
+        self.training_walltime = 0.0
+
+    # ---- what a recurrent loop (vnl.train.recurrent_ppo) replaces -----------------------------------
+
+    def _make_network(self, env: Any) -> Any:
+        """Brax's PPO networks with the run's sizes."""
+        network = make_network(self.config, env)
+        self.make_policy = ppo_networks.make_inference_fn(network)
+        return network
+
+    def _loss_fn(self) -> Any:
+        """Brax's PPO loss with the run's hyperparameters: loss(params, normalizer, data, key)."""
+        p = self.config.ppo
+        return functools.partial(
             ppo_losses.compute_ppo_loss,
             ppo_network=self.network,
             entropy_cost=p.entropy_cost,
@@ -200,15 +191,11 @@ class PPOLoop:
             gae_lambda=p.gae_lambda,
             clipping_epsilon=p.clipping_epsilon,
         )
-        self._loss_and_pgrad = gradients.loss_and_pgrad(loss_fn, pmap_axis_name=AXIS, has_aux=True)
-        self._epoch = jax.pmap(self._training_epoch, axis_name=AXIS, donate_argnums=(0, 1))
-        self._epoch_exec: Any = None  # the epoch compiled ahead of time (`compile`)
-        self._reset = jax.pmap(self.env.reset, axis_name=AXIS)
-        self._identity = jax.pmap(lambda x: x, axis_name=AXIS)
-        eval_env = wrap_for_training(
-            env, episode_length=self.episode_length, action_repeat=p.action_repeat, randomization_fn=eval_models
-        )
-        self._evaluator = acting.Evaluator(
+
+    def _make_evaluator(self, eval_env: Any) -> Any:
+        """Brax's `Evaluator` of the policy on `num_eval_envs` episodes of `eval_env`."""
+        p = self.config.ppo
+        return acting.Evaluator(
             eval_env,
             functools.partial(self.make_policy, deterministic=p.deterministic_eval),
             num_eval_envs=p.num_eval_envs,
@@ -216,7 +203,31 @@ class PPOLoop:
             action_repeat=p.action_repeat,
             key=jax.random.PRNGKey(0),  # replaced by LoopState.eval_key before every evaluation
         )
-        self.training_walltime = 0.0
+
+    def _collect(self, training: TrainingState, env_state: Any, key: jax.Array) -> tuple[Any, Any]:
+        """One training step's data: `batch_size * num_minibatches // num_envs` unrolls of
+        `unroll_length` steps of every env (Brax's `generate_unroll`); returns (env states, data
+        of shape (unrolls, unroll_length, envs, ...))."""
+        p = self.config.ppo
+        policy = self.make_policy((training.normalizer_params, training.params.policy, training.params.value))
+
+        def unroll(c: tuple[Any, jax.Array], _: Any) -> tuple[Any, Any]:
+            s, k = c
+            k, next_k = jax.random.split(k)
+            s, data = acting.generate_unroll(
+                self.env,
+                s,
+                policy,
+                k,
+                p.unroll_length,
+                extra_fields=("truncation", "episode_metrics", "episode_done"),
+            )
+            return (s, next_k), data
+
+        (env_state, _), data = jax.lax.scan(
+            unroll, (env_state, key), (), length=p.batch_size * p.num_minibatches // p.num_envs
+        )
+        return env_state, data
 
     def _randomized_models(self, env: Any) -> tuple[Any, Any]:
         """Brax-style `randomization_fn(model)`s for the training and the evaluation envs (None
@@ -420,24 +431,7 @@ class PPOLoop:
         p = self.config.ppo
         training, env_state, key = carry
         key_sgd, key_unroll, new_key = jax.random.split(key, 3)
-        policy = self.make_policy((training.normalizer_params, training.params.policy, training.params.value))
-
-        def unroll(c: tuple[Any, jax.Array], _: Any) -> tuple[Any, Any]:
-            s, k = c
-            k, next_k = jax.random.split(k)
-            s, data = acting.generate_unroll(
-                self.env,
-                s,
-                policy,
-                k,
-                p.unroll_length,
-                extra_fields=("truncation", "episode_metrics", "episode_done"),
-            )
-            return (s, next_k), data
-
-        (env_state, _), data = jax.lax.scan(
-            unroll, (env_state, key_unroll), (), length=p.batch_size * p.num_minibatches // p.num_envs
-        )
+        env_state, data = self._collect(training, env_state, key_unroll)
         # (batch_size * num_minibatches, unroll_length, ...)
         data = jax.tree.map(lambda x: jp.swapaxes(x, 1, 2), data)
         data = jax.tree.map(lambda x: jp.reshape(x, (-1,) + x.shape[2:]), data)

@@ -18,7 +18,7 @@ from vnl.errors import VnlError
 from vnl.io import checkpoint
 from vnl.io import metrics as metrics_io
 from vnl.tasks.contract import Env
-from vnl.train import networks
+from vnl.train import recurrent
 from vnl.train.config import TrainConfig, resolved
 
 Say = Callable[[str], None]
@@ -53,7 +53,7 @@ def checkpoint_bytes(config: TrainConfig, env: Env) -> int:
     """
     state = jax.eval_shape(env.reset, jax.ShapeDtypeStruct((2,), np.uint32))
     per_env = sum(int(np.prod(x.shape)) * x.dtype.itemsize for x in jax.tree.leaves(state))
-    network = networks.make_network(config, env)
+    network = recurrent.make_networks(config, env)
     key = jax.ShapeDtypeStruct((2,), np.uint32)
     params = jax.eval_shape(lambda k: (network.policy_network.init(k), network.value_network.init(k)), key)
     n_params = sum(int(np.prod(x.shape)) * x.dtype.itemsize for x in jax.tree.leaves(params))

@@ -132,7 +132,9 @@ def load_parent(config: TrainConfig) -> Parent:
 
 def _check_networks(parent: Parent, config: TrainConfig) -> None:
     a, b = parent.config, config
-    fields = ("policy_hidden_layer_sizes", "value_hidden_layer_sizes", "activation", "distribution_type")
+    fields = ("policy_hidden_layer_sizes", "value_hidden_layer_sizes", "activation", "distribution_type", "core")
+    if b.network.core is not None:
+        fields += ("core_size",)
     if b.network.distribution_type == "normal":
         fields += ("noise_std_type",)
     if b.vision.enabled:
@@ -250,8 +252,11 @@ def apply(loop: Any, state: Any, parent: Parent, keep_optimizer: bool) -> Any:
     return loop.with_training(state, jax.tree_util.tree_unflatten(treedef, leaves))
 
 
-# A `normal` policy's MLP sits under MLP_0 (Brax's PolicyModuleWithStd).
-FIRST_KERNEL = re.compile(r"\.training\.params\.(policy|value)\['params'\](\['MLP_0'\])?\['hidden_0'\]\['kernel'\]")
+# A `normal` policy's MLP sits under MLP_0 (Brax's PolicyModuleWithStd), a recurrent network's
+# under encoder (vnl.train.recurrent).
+FIRST_KERNEL = re.compile(
+    r"\.training\.params\.(policy|value)\['params'\](\['MLP_0'\]|\['encoder'\])?\['hidden_0'\]\['kernel'\]"
+)
 
 
 def _widen(name: str, theirs: np.ndarray, parent: Parent) -> np.ndarray:

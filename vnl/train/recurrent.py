@@ -1,0 +1,195 @@
+"""Recurrent policy and value networks: observation encoder -> LSTM or GRU core -> head.
+
+`network.core: lstm | gru` (null: Brax's feed-forward MLPs, `vnl.train.networks`) puts a
+recurrent core of `network.core_size` units between the encoder (the `*_hidden_layer_sizes` MLP,
+after the CNN with `--vision`) and a linear head. The policy and the value network each have their
+own encoder and core, as Brax keeps its policy and value networks apart: a shared core would let
+the value loss's gradients shape the policy's memory, with one more loss weight to tune
+(docs/how-to/recurrent.md).
+
+A core's state (the carry) is a tuple of arrays of shape (..., core_size): (c, h) for an LSTM,
+(h,) for a GRU. `step` runs one control step: the carry is reset to zeros where `reset` is 1 (the
+first step of an episode), then the encoder and the core read the observation. `unroll` runs a
+sequence from a stored carry, with the same resets: what PPO's loss re-runs over each unroll.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import jax
+import jax.numpy as jp
+from brax.training import distribution, networks
+from brax.training.acme import running_statistics
+from flax import linen
+
+from vnl.tasks.contract import Env
+from vnl.train.config import NetworkConfig, TrainConfig
+from vnl.train.networks import ACTIVATIONS
+
+Carry = tuple[jax.Array, ...]
+
+
+def _pixels(x: jax.Array) -> jax.Array:
+    return x.astype(jp.float32) / 255.0 if x.dtype == jp.uint8 else x
+
+
+class CoreNet(linen.Module):
+    """encoder (MLP `hidden_<i>`, after a CNN per `pixels/` key) -> `core` cell -> `output`
+    Dense. `__call__(obs, carry) -> (head output, new carry, core output)`; with `std_size` the
+    head output is (location, scale) with a learned per-action scale (Brax's normal policy)."""
+
+    hidden_sizes: Sequence[int]
+    core: str
+    core_size: int
+    out_size: int
+    activation: Callable[[jax.Array], jax.Array]
+    vision: dict[str, Any] | None = None  # Brax VisionMLP's CNN settings
+    std_size: int = 0
+    noise_std_type: str = "log"
+    init_noise_std: float = 1.0
+
+    @linen.compact
+    def __call__(self, obs: Any, carry: Carry) -> tuple[Any, Carry, jax.Array]:
+        if isinstance(obs, dict):
+            features = networks.VisionMLP(
+                layer_sizes=tuple(self.hidden_sizes),
+                activation=self.activation,
+                activate_final=True,
+                state_obs_key="state",
+                name="encoder",
+                **(self.vision or {}),
+            )({k: _pixels(v) for k, v in obs.items()})
+        else:
+            features = networks.MLP(
+                layer_sizes=tuple(self.hidden_sizes), activation=self.activation, activate_final=True, name="encoder"
+            )(obs)
+        if self.core == "lstm":
+            (c, h), out = linen.OptimizedLSTMCell(self.core_size, name="core")(carry, features)
+            carry = (c, h)
+        else:
+            h, out = linen.GRUCell(self.core_size, name="core")(carry[0], features)
+            carry = (h,)
+        head = linen.Dense(self.out_size, name="output")(out)
+        if self.std_size:
+            if self.noise_std_type == "log":
+                std = networks.LogParam(self.init_noise_std, size=self.std_size, name="std_logparam")()
+            else:
+                std = networks.Param(self.init_noise_std, size=self.std_size, name="std_param")()
+            head = (head, jp.broadcast_to(std, head.shape))
+        return head, carry, out
+
+
+@dataclasses.dataclass(frozen=True)
+class RecurrentNetwork:
+    """A `CoreNet` with the observation normalizer in front.
+
+    init(key) -> params; step(normalizer, params, obs (..., obs), carry, reset (...,)) ->
+    (output, carry, core output (..., core_size)); unroll(normalizer, params, obs (T, ..., obs),
+    carry0, resets (T, ...)) -> (outputs (T, ...), last carry).
+    """
+
+    module: CoreNet
+    observation_size: Any
+    normalize: Callable[[Any, Any], Any]
+
+    @property
+    def carry_size(self) -> int:
+        return 2 if self.module.core == "lstm" else 1
+
+    def initial_carry(self, batch_shape: tuple[int, ...] = ()) -> Carry:
+        """Zeros: shape batch_shape + (core_size,) for each part of the carry."""
+        shape = batch_shape + (self.module.core_size,)
+        return tuple(jp.zeros(shape, jp.float32) for _ in range(self.carry_size))  # distinct buffers (donated)
+
+    def _dummy_obs(self) -> Any:
+        size = self.observation_size
+        if isinstance(size, dict):
+            return {
+                k: jp.zeros((1,) + tuple(v), jp.uint8 if k.startswith("pixels/") else jp.float32)
+                for k, v in size.items()
+            }
+        return jp.zeros((1, size), jp.float32)
+
+    def init(self, key: jax.Array) -> Any:
+        return self.module.init(key, self._dummy_obs(), self.initial_carry((1,)))
+
+    def _normalized(self, normalizer: Any, obs: Any) -> Any:
+        if isinstance(obs, dict):
+            state = {k: v for k, v in obs.items() if not k.startswith("pixels/")}
+            return {**obs, **self.normalize(state, normalizer)}
+        return self.normalize(obs, normalizer)
+
+    def step(self, normalizer: Any, params: Any, obs: Any, carry: Carry, reset: jax.Array) -> tuple[Any, Carry, Any]:
+        carry = tuple(jp.where(reset[..., None] > 0, jp.zeros_like(c), c) for c in carry)
+        return self.module.apply(params, self._normalized(normalizer, obs), carry)
+
+    def unroll(self, normalizer: Any, params: Any, obs: Any, carry: Carry, resets: jax.Array) -> tuple[Any, Carry]:
+        def one(c: Carry, xs: tuple[Any, jax.Array]) -> tuple[Carry, Any]:
+            o, r = xs
+            out, c, _ = self.step(normalizer, params, o, c, r)
+            return c, out
+
+        carry, outs = jax.lax.scan(one, carry, (obs, resets))
+        return outs, carry
+
+
+@dataclasses.dataclass(frozen=True)
+class RecurrentPPONetworks:
+    """The recurrent counterpart of Brax's `PPONetworks`: `policy_network`, `value_network` (each
+    a `RecurrentNetwork`; the value's output has size 1) and Brax's `parametric_action_distribution`."""
+
+    policy_network: RecurrentNetwork
+    value_network: RecurrentNetwork
+    parametric_action_distribution: Any
+
+
+def is_recurrent(net: NetworkConfig) -> bool:
+    return net.core is not None
+
+
+def make_recurrent_networks(config: TrainConfig, env: Env) -> RecurrentPPONetworks:
+    """Policy and value `RecurrentNetwork`s with the run's sizes, core and action distribution."""
+    net = config.network
+    normalize = running_statistics.normalize if config.ppo.normalize_observations else (lambda x, y: x)
+    vision = None
+    if isinstance(env.observation_size, dict):
+        vision = {
+            "cnn_output_channels": tuple(net.cnn_channels),
+            "cnn_kernel_size": tuple(net.cnn_kernel_sizes),
+            "cnn_stride": tuple(net.cnn_strides),
+            "cnn_max_pool": net.cnn_max_pool,
+            "cnn_global_pool": net.cnn_pool,
+        }
+    if net.distribution_type == "normal":
+        dist = distribution.NormalDistribution(event_size=env.action_size)
+        out, std = env.action_size, env.action_size
+    else:
+        dist = distribution.NormalTanhDistribution(event_size=env.action_size)
+        out, std = dist.param_size, 0
+    common = {"core": net.core, "core_size": net.core_size, "activation": ACTIVATIONS[net.activation], "vision": vision}
+    policy = CoreNet(
+        tuple(net.policy_hidden_layer_sizes),
+        out_size=out,
+        std_size=std,
+        noise_std_type=net.noise_std_type,
+        init_noise_std=net.init_noise_std,
+        **common,
+    )
+    value = CoreNet(tuple(net.value_hidden_layer_sizes), out_size=1, **common)
+    return RecurrentPPONetworks(
+        RecurrentNetwork(policy, env.observation_size, normalize),
+        RecurrentNetwork(value, env.observation_size, normalize),
+        dist,
+    )
+
+
+def make_networks(config: TrainConfig, env: Env) -> Any:
+    """The run's networks: `RecurrentPPONetworks` with `network.core`, else Brax's `PPONetworks`."""
+    if is_recurrent(config.network):
+        return make_recurrent_networks(config, env)
+    from vnl.train.networks import make_network
+
+    return make_network(config, env)

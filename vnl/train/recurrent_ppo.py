@@ -1,0 +1,269 @@
+"""PPO with a recurrent core (`network.core`): `RecurrentPPOLoop`, `PPOLoop` with state.
+
+What changes from `vnl.train.loop.PPOLoop` (Brax's PPO), as purejaxrl's `ppo_rnn` does it:
+
+- the training envs' state is (env states, core states): each env carries its policy's and its
+  value network's core state (`{"policy": carry, "value": carry}`) from step to step and from
+  epoch to epoch, and it is checkpointed with the env states, so a resumed run is the same run;
+- a core state is reset to zeros before the first step of every episode (an env whose last step
+  ended its episode was auto-reset to a new one), in the rollout, the loss and the evaluation;
+- every collected step stores the core state it started from and whether it was reset; the loss
+  re-runs each unroll of `unroll_length` steps from the state stored at its first step, with the
+  same resets (truncated backpropagation through time), so the re-run gives the rollout's
+  log-probabilities back (a test checks it). Minibatches take whole unrolls of some envs: never
+  split across time.
+- the evaluation runs the policy with its core (Brax's `Evaluator` is stateless).
+
+The loss is Brax's `compute_ppo_loss` with the networks run over time instead of over a batch of
+independent observations (GAE from Brax's `compute_gae`).
+"""
+
+from __future__ import annotations
+
+import functools
+import time
+from typing import Any
+
+import jax
+import jax.numpy as jp
+import numpy as np
+from brax import envs as brax_envs
+from brax.training import types as brax_types
+from brax.training.agents.ppo.losses import compute_gae
+
+from vnl.train.loop import PPOLoop, TrainingState
+from vnl.train.recurrent import RecurrentPPONetworks, make_recurrent_networks
+
+
+def sample(dist: Any, logits: Any, key: jax.Array, deterministic: bool) -> tuple[jax.Array, dict[str, Any]]:
+    """An action from the policy's output `logits` as Brax's inference function draws it: the
+    mode, or a sample with its raw value, log-probability and the distribution's parameters."""
+    if deterministic:
+        return dist.mode(logits), {}
+    raw = dist.sample_no_postprocessing(logits, key)
+    extras = {"log_prob": dist.log_prob(logits, raw), "raw_action": raw, "distribution_params": logits}
+    return dist.postprocess(raw), extras
+
+
+def zero_carry(networks: RecurrentPPONetworks, batch_shape: tuple[int, ...]) -> dict[str, Any]:
+    """Both networks' core states at zero, shape batch_shape + (core_size,) each."""
+    return {
+        "policy": networks.policy_network.initial_carry(batch_shape),
+        "value": networks.value_network.initial_carry(batch_shape),
+    }
+
+
+def actor_step(
+    env: Any,
+    networks: RecurrentPPONetworks,
+    params: Any,
+    state: Any,
+    carry: dict[str, Any],
+    key: jax.Array,
+    deterministic: bool = False,
+    extra_fields: tuple[str, ...] = (),
+) -> tuple[Any, dict[str, Any], brax_types.Transition]:
+    """One step of a batch of envs with the recurrent policy: the cores are reset where the env's
+    last step ended an episode (`state.done`), read the observation, and the sampled action steps
+    the envs. The transition's extras hold the core state the step started from (before the reset)
+    and the reset flags, for the loss's re-run."""
+    normalizer, policy_params, value_params = params
+    reset = state.done
+    logits, policy_carry, _ = networks.policy_network.step(normalizer, policy_params, state.obs, carry["policy"], reset)
+    _, value_carry, _ = networks.value_network.step(normalizer, value_params, state.obs, carry["value"], reset)
+    action, policy_extras = sample(networks.parametric_action_distribution, logits, key, deterministic)
+    nstate = env.step(state, action)
+    transition = brax_types.Transition(
+        observation=state.obs,
+        action=action,
+        reward=nstate.reward,
+        discount=1 - nstate.done,
+        next_observation=nstate.obs,
+        extras={
+            "policy_extras": policy_extras,
+            "state_extras": {x: nstate.info[x] for x in extra_fields},
+            "core": {"carry": carry, "reset": reset},
+        },
+    )
+    return nstate, {"policy": policy_carry, "value": value_carry}, transition
+
+
+def recurrent_ppo_loss(
+    params: Any,
+    normalizer_params: Any,
+    data: brax_types.Transition,
+    rng: jax.Array,
+    networks: RecurrentPPONetworks,
+    entropy_cost: float,
+    discounting: float,
+    reward_scaling: float,
+    gae_lambda: float,
+    clipping_epsilon: float,
+) -> tuple[jax.Array, dict[str, jax.Array]]:
+    """Brax's PPO loss on unrolls `data` (leading axes (B, T)), the networks re-run over time from
+    each unroll's first stored core state with the stored resets."""
+    dist = networks.parametric_action_distribution
+    data = jax.tree.map(lambda x: jp.swapaxes(x, 0, 1), data)  # time first: (T, B, ...)
+    core = data.extras["core"]
+    resets = core["reset"]
+    logits, _ = networks.policy_network.unroll(
+        normalizer_params,
+        params.policy,
+        data.observation,
+        jax.tree.map(lambda c: c[0], core["carry"]["policy"]),
+        resets,
+    )
+    values, value_carry = networks.value_network.unroll(
+        normalizer_params, params.value, data.observation, jax.tree.map(lambda c: c[0], core["carry"]["value"]), resets
+    )
+    baseline = jp.squeeze(values, -1)
+    last = jax.tree.map(lambda x: x[-1], data.next_observation)
+    bootstrap, _, _ = networks.value_network.step(
+        normalizer_params, params.value, last, value_carry, 1 - data.discount[-1]
+    )
+    bootstrap_value = jp.squeeze(bootstrap, -1)
+
+    rewards = data.reward * reward_scaling
+    truncation = data.extras["state_extras"]["truncation"]
+    termination = (1 - data.discount) * (1 - truncation)
+    target_log_probs = dist.log_prob(logits, data.extras["policy_extras"]["raw_action"])
+    behaviour_log_probs = data.extras["policy_extras"]["log_prob"]
+    vs, advantages = compute_gae(
+        truncation=truncation,
+        termination=termination,
+        rewards=rewards,
+        values=baseline,
+        bootstrap_value=bootstrap_value,
+        lambda_=gae_lambda,
+        discount=discounting,
+    )
+    advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
+    rho = jp.exp(target_log_probs - behaviour_log_probs)
+    clipped = jp.clip(rho, 1 - clipping_epsilon, 1 + clipping_epsilon)
+    policy_loss = -jp.mean(jp.minimum(rho * advantages, clipped * advantages))
+    v_loss = jp.mean((vs - baseline) ** 2) * 0.5 * 0.5
+    entropy = jp.mean(dist.entropy(logits, rng))
+    entropy_loss = entropy_cost * -entropy
+    total_loss = policy_loss + v_loss + entropy_loss
+    new_dist = dist.create_dist(logits)
+    old_dist = dist.create_dist(data.extras["policy_extras"]["distribution_params"])
+    return total_loss, {
+        "total_loss": total_loss,
+        "policy_loss": policy_loss,
+        "v_loss": v_loss,
+        "entropy_loss": entropy_loss,
+        "kl_mean": jp.mean(new_dist.kl_divergence(old_dist)),
+        "policy_dist_mean_std": jp.mean(new_dist.scale),
+    }
+
+
+class RecurrentEvaluator:
+    """Brax's `Evaluator` for a recurrent policy: `num_eval_envs` episodes of the evaluation env
+    from `run_evaluation(params, training_metrics, key)`, the same metrics (Brax's `EvalWrapper`
+    sums each episode's metrics), the cores starting at zero."""
+
+    def __init__(
+        self, eval_env: Any, networks: RecurrentPPONetworks, num_eval_envs: int, steps: int, deterministic: bool
+    ) -> None:
+        self._env = brax_envs.training.EvalWrapper(eval_env)
+        self._walltime = 0.0
+        self._steps = steps * num_eval_envs
+
+        def unroll(params: Any, key: jax.Array) -> Any:
+            key, reset_key = jax.random.split(key)
+            state = self._env.reset(jax.random.split(reset_key, num_eval_envs))
+            carry = zero_carry(networks, (num_eval_envs,))
+
+            def one(c: tuple[Any, Any, jax.Array], _: Any) -> tuple[Any, None]:
+                s, cr, k = c
+                k, step_key = jax.random.split(k)
+                s, cr, _ = actor_step(self._env, networks, params, s, cr, step_key, deterministic)
+                return (s, cr, k), None
+
+            (state, _, _), _ = jax.lax.scan(one, (state, carry, key), (), length=steps)
+            return state.info["eval_metrics"]
+
+        self._unroll = jax.jit(unroll)
+
+    def run_evaluation(
+        self, params: Any, training_metrics: dict[str, Any], key: jax.Array
+    ) -> tuple[dict[str, Any], jax.Array]:
+        """(Brax's evaluation metrics, the key after this evaluation)."""
+        key, unroll_key = jax.random.split(key)
+        t = time.time()
+        m = jax.tree.map(np.asarray, self._unroll(params, unroll_key))
+        seconds = time.time() - t
+        self._walltime += seconds
+        metrics: dict[str, Any] = {"eval/walltime": self._walltime, **training_metrics}
+        for fn, suffix in ((np.mean, ""), (np.std, "_std")):
+            lengths = np.maximum(m.episode_steps, 1.0)
+            for name, value in m.episode_metrics.items():
+                metrics[f"eval/episode_{name}{suffix}"] = fn(value / lengths if name.endswith("per_step") else value)
+        metrics["eval/avg_episode_length"] = np.mean(m.episode_steps)
+        metrics["eval/std_episode_length"] = np.std(m.episode_steps)
+        metrics["eval/epoch_eval_time"] = seconds
+        metrics["eval/sps"] = self._steps / seconds
+        return metrics, key
+
+
+class RecurrentPPOLoop(PPOLoop):
+    """`PPOLoop` with a recurrent core (see the module docstring). `LoopState.env` holds
+    (env states, core states) with the same leading axes (devices, envs per device)."""
+
+    def _make_network(self, env: Any) -> RecurrentPPONetworks:
+        return make_recurrent_networks(self.config, env)
+
+    def _loss_fn(self) -> Any:
+        p = self.config.ppo
+        return functools.partial(
+            recurrent_ppo_loss,
+            networks=self.network,
+            entropy_cost=p.entropy_cost,
+            discounting=p.discounting,
+            reward_scaling=p.reward_scaling,
+            gae_lambda=p.gae_lambda,
+            clipping_epsilon=p.clipping_epsilon,
+        )
+
+    def _make_evaluator(self, eval_env: Any) -> RecurrentEvaluator:
+        p = self.config.ppo
+        steps = self.episode_length // p.action_repeat
+        return RecurrentEvaluator(eval_env, self.network, p.num_eval_envs, steps, p.deterministic_eval)
+
+    def reset_envs(self, key: jax.Array) -> Any:
+        """New env states and zero core states: (devices, envs per device, ...) each."""
+        envs = super().reset_envs(key)
+        return envs, zero_carry(self.network, (self.n_devices, self.local_envs // self.n_devices))
+
+    def evaluate(self, state: Any, training_metrics: dict[str, float]) -> tuple[Any, dict[str, Any]]:
+        metrics, eval_key = self._evaluator.run_evaluation(self.params(state), training_metrics, state.eval_key)
+        return state.replace(eval_key=eval_key), metrics
+
+    def _collect(self, training: TrainingState, env_state: Any, key: jax.Array) -> tuple[Any, Any]:
+        """Like `PPOLoop._collect`, the cores carried from step to step (`actor_step`)."""
+        p = self.config.ppo
+        params = (training.normalizer_params, training.params.policy, training.params.value)
+        fields = ("truncation", "episode_metrics", "episode_done")
+
+        def step(c: tuple[Any, Any, jax.Array], _: Any) -> tuple[Any, Any]:
+            s, cr, k = c
+            k, next_k = jax.random.split(k)
+            s, cr, transition = actor_step(self.env, self.network, params, s, cr, k, extra_fields=fields)
+            return (s, cr, next_k), transition
+
+        def unroll(c: tuple[Any, jax.Array], _: Any) -> tuple[Any, Any]:
+            (s, cr), k = c
+            k, next_k = jax.random.split(k)
+            (s, cr, _), data = jax.lax.scan(step, (s, cr, k), (), length=p.unroll_length)
+            return ((s, cr), next_k), data
+
+        (env_state, _), data = jax.lax.scan(
+            unroll, (env_state, key), (), length=p.batch_size * p.num_minibatches // p.num_envs
+        )
+        return env_state, data
+
+
+def make_ppo_loop(env: Any, config: Any, training_steps_per_epoch: int | None = None) -> PPOLoop:
+    """`RecurrentPPOLoop` when `config.network.core` is set, else Brax's `PPOLoop`."""
+    cls = RecurrentPPOLoop if config.network.core is not None else PPOLoop
+    return cls(env, config, training_steps_per_epoch)
