@@ -181,12 +181,15 @@ def variables(env: Any, raw: dict[str, Any]) -> tuple[dict[str, Variable], dict[
     if not hasattr(task, "walker"):  # not a walker task: only the task's events
         return out, coords, attrs
     m, root = env.mj_model, int(task.root_body_id)
+    attrs["walker"] = task.walker.name
+    body = _subtree(m, root)
+    out["walker_body"] = (("body",), body.astype(np.int8), {"description": "1 for the walker's bodies"})
     ends = [body_id(m, n) for n in task.walker.end_effectors]
     com, contact = replay(m, root, ends, raw["qpos"], raw["qvel"], raw.get("mocap_pos"), active)
     speed = forward_speed(com, np.asarray(raw["body_quat"])[:, :, root])
     out["com_velocity"] = (et + ("xyz",), com, {"units": "m/s", "description": "centre-of-mass velocity, world frame"})
     out["forward_speed"] = (et, speed, {"units": "m/s", "description": "com_velocity along the walker's heading"})
-    joints = _hinge_joints(m, _subtree(m, root))
+    joints = _hinge_joints(m, body)
     if joints:
         coords["joint"] = [j[0] for j in joints]
         qpos, qvel = np.asarray(raw["qpos"]), np.asarray(raw["qvel"])

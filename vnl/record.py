@@ -171,6 +171,7 @@ def _dataset(run: LoadedRun, raw: dict[str, Any], episodes: int, steps: int, see
             "qvel": (dims_et + ("qvel_index",), _et(raw["qvel"])),
             "body_pos": (dims_et + ("body", "xyz"), _et(raw["body_pos"])),
             "body_quat": (dims_et + ("body", "wxyz"), _et(raw["body_quat"])),
+            "body_parent": (("body",), np.asarray(m.body_parentid, np.int32)),
         }
     )
     for k, v in raw["metrics"].items():
