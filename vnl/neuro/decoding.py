@@ -41,7 +41,7 @@ class Decoding:
     def to_json(self) -> dict[str, Any]:
         return {
             "analysis": "decoding",
-            "model": "ridge regression (RidgeCV) from the layer's standardised units",
+            "model": "ridge regression from the layer's standardised units, penalty chosen on the training episodes",
             "cross_validation": f"GroupKFold by episode, {self.folds} folds",
             "layer": self.layer,
             "units": self.units,

@@ -46,7 +46,8 @@ class Encoding:
     def to_json(self) -> dict[str, Any]:
         return {
             "analysis": "encoding",
-            "model": "ridge regression (RidgeCV) from standardised behaviour features to each unit",
+            "model": "ridge regression from standardised behaviour features to each unit "
+            "(penalty per unit chosen on the training episodes)",
             "cross_validation": f"GroupKFold by episode, {self.folds} folds",
             "control": self.control,
             "features": self.features,
