@@ -162,6 +162,20 @@ def test_controls_move_features_within_each_episode_only():
         features.control(s, "nope", np.random.default_rng(0))
 
 
+def test_predictions_are_held_out_by_episode():
+    # Each episode has its own offset, and the features say which episode a step is from: a model
+    # scored on the episodes it was fitted on explains it all, one scored on held-out episodes nothing.
+    rng = np.random.default_rng(0)
+    episode = np.repeat(np.arange(6), 50)
+    x = np.eye(6)[episode] + 0.01 * rng.normal(size=(300, 6))
+    y = rng.normal(size=6)[episode][:, None]
+    assert features.r2(y, features.ridge_predict(x, y, episode, 3))[0] < 0.05
+    # The same regression does fit within episodes: a per-step signal it can read.
+    within = np.concatenate([x, rng.normal(size=(300, 1))], axis=1)
+    y2 = within[:, -1:] * 2.0
+    assert features.r2(y2, features.ridge_predict(within, y2, episode, 3))[0] > 0.99
+
+
 def test_r2_is_the_coefficient_of_determination():
     rng = np.random.default_rng(0)
     y = rng.normal(size=(50, 2))
