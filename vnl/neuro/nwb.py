@@ -284,7 +284,7 @@ def write(
     for table in _intervals(ds, episode, time, first, dt):
         nwb.add_time_intervals(table)
     path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
+    tmp = path.with_name(f".{path.stem}.partial.nwb")  # pynwb warns about names not ending in .nwb
     with NWBHDF5IO(str(tmp), "w") as io:
         io.write(nwb)
     tmp.replace(path)
