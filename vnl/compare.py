@@ -9,7 +9,12 @@ network:
   rotation (or isotropic scaling) of the other, near 0 for unrelated representations;
 - RSA (representational similarity analysis): the Spearman correlation of the two layers'
   representational dissimilarity matrices (pairwise distances between the n steps, any
-  `scipy.spatial.distance.pdist` metric: correlation, euclidean, cosine, ...).
+  `scipy.spatial.distance.pdist` metric: correlation, euclidean, cosine, ...);
+- `rdm`: the same RDMs made and compared with rsatoolbox (`vnl.neuro.similarity`: its
+  dissimilarities and comparison methods: cosine, corr, spearman, tau-a, ...);
+- `dsa`: Dynamical Similarity Analysis (`vnl.neuro.dsa`), on time series: each episode's first
+  steps (as many as the shortest episode has) are the trials; an angular distance, 0 for the same
+  dynamics.
 
 Runs whose configs differ only in seed (and logging) are one model trained several times: their
 pairs are reported separately, as the similarity of that model to itself across seeds — the
@@ -28,7 +33,8 @@ import numpy as np
 from vnl.errors import VnlError
 from vnl.io import checkpoint
 
-MEASURES = ("cka", "rsa")
+MEASURES = ("cka", "rsa", "rdm", "dsa")
+LABELS = {"cka": "linear CKA", "rsa": "RSA", "rdm": "RDM comparison", "dsa": "DSA angular distance (rad)"}
 
 
 def linear_cka(x: np.ndarray, y: np.ndarray) -> float:
@@ -110,6 +116,7 @@ class Comparison:
     distance: str | None
     samples: int
     source: str
+    comparison: str | None = None  # rdm: rsatoolbox's comparison method
 
     def layer_names(self, i: int) -> list[str]:
         return list(self.networks[i].layers)
@@ -123,6 +130,7 @@ class Comparison:
         return {
             "measure": self.measure,
             "distance": self.distance,
+            "rdm_comparison": self.comparison,
             "samples": self.samples,
             "observations": self.source,
             "networks": [{"name": n.name, "run_dir": str(n.run_dir), "step": n.step} for n in self.networks],
@@ -145,24 +153,67 @@ def _finite(v: float) -> float | None:
 
 
 def compare(
-    networks: list[Network], measure: str = "cka", distance: str = "correlation", source: str = ""
+    networks: list[Network],
+    measure: str = "cka",
+    distance: str = "correlation",
+    source: str = "",
+    comparison: str = "cosine",
+    trials: int = 1,
+    n_delays: int = 10,
+    rank: int = 20,
 ) -> Comparison:
-    """Similarity of every layer of network i to every layer of network j, for all pairs i < j."""
+    """Similarity of every layer of network i to every layer of network j, for all pairs i < j.
+    `rdm` uses `distance` and rsatoolbox's `comparison`; `dsa` reads each layer's (samples, units)
+    as `trials` consecutive trials of equal length, with `n_delays` and `rank`."""
     if measure not in MEASURES:
         raise VnlError(f"unknown similarity measure {measure!r}; choose one of {', '.join(MEASURES)}")
     pairs = {}
     for i, j in itertools.combinations(range(len(networks)), 2):
         a, b = networks[i].layers, networks[j].layers
-        pairs[(i, j)] = np.array([[similarity(x, y, measure, distance) for y in b.values()] for x in a.values()])
+        if measure == "rdm":
+            from vnl.neuro import similarity as rdm
+
+            pairs[(i, j)] = rdm.compare_layers(a, b, distance, comparison)
+        elif measure == "dsa":
+            from vnl.neuro import dsa
+
+            def series(layers: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+                return {k: v.reshape(trials, -1, v.shape[-1]) for k, v in layers.items()}
+
+            pairs[(i, j)] = dsa.dsa_matrix(series(a), series(b), n_delays, rank)
+        else:
+            pairs[(i, j)] = np.array([[similarity(x, y, measure, distance) for y in b.values()] for x in a.values()])
     n = next(iter(networks[0].layers.values())).shape[0] if networks else 0
-    return Comparison(networks, pairs, measure, distance if measure == "rsa" else None, n, source)
+    dist = distance if measure in ("rsa", "rdm") else None
+    return Comparison(networks, pairs, measure, dist, n, source, comparison if measure == "rdm" else None)
+
+
+def _label(result: Comparison) -> str:
+    if result.measure == "rsa":
+        return f"RSA (Spearman of {result.distance} RDMs)"
+    if result.measure == "rdm":
+        return f"rsatoolbox {result.comparison} of {result.distance} RDMs"
+    return LABELS[result.measure]
+
+
+def trial_mask(mask: np.ndarray, minimum: int) -> tuple[np.ndarray, int]:
+    """For DSA: `mask` (episodes, time) cut to each episode's first L steps, L the shortest
+    episode's active length. Returns (the mask, L); `VnlError` if L < `minimum`."""
+    length = int(mask.sum(axis=1).min()) if mask.size else 0
+    if length < minimum:
+        raise VnlError(
+            f"DSA needs every episode to last at least {minimum} steps (n_delays + 2); the shortest lasts {length}: "
+            "record longer episodes or use fewer --delays"
+        )
+    out = np.zeros_like(mask)
+    out[:, :length] = True
+    return out & mask, length
 
 
 def table(result: Comparison) -> str:
     """The comparison as text: for each pair, a layers × layers table; then, per layer name
     shared by all networks, the same-layer similarity of every pair (across-seed pairs marked)."""
-    what = "linear CKA" if result.measure == "cka" else f"RSA (Spearman of {result.distance} RDMs)"
-    lines = [f"{what} on {result.samples:,} steps of {result.source}"]
+    lines = [f"{_label(result)} on {result.samples:,} steps of {result.source}"]
     for (i, j), m in result.pairs.items():
         a, b = result.networks[i], result.networks[j]
         seeds = "  (same model, other seed)" if result.same_seed_group(i, j) else ""
@@ -196,13 +247,15 @@ def heatmap(result: Comparison, out: str | Path) -> Path:
     rows = -(-len(pairs) // cols)
     fig = Figure(figsize=(5.2 * cols, 4.6 * rows))
     axes = fig.subplots(rows, cols, squeeze=False)
-    label = "linear CKA" if result.measure == "cka" else f"RSA ({result.distance})"
+    label = _label(result)
+    lo, hi = {"cka": (0, 1), "dsa": (0, np.pi / 2)}.get(result.measure, (-1, 1))
     for ax, ((i, j), m) in zip(axes.flat, pairs, strict=False):
-        image = ax.imshow(m, vmin=0 if result.measure == "cka" else -1, vmax=1, cmap="viridis")
+        image = ax.imshow(m, vmin=lo, vmax=hi, cmap="viridis_r" if result.measure == "dsa" else "viridis")
         ax.set_yticks(range(m.shape[0]), result.layer_names(i), fontsize=7)
         ax.set_xticks(range(m.shape[1]), result.layer_names(j), fontsize=7, rotation=60, ha="right")
         for (r, c), v in np.ndenumerate(m):
-            ax.text(c, r, f"{v:.2f}", ha="center", va="center", fontsize=6, color="w" if v < 0.6 else "k")
+            light = (v - lo) / (hi - lo) > 0.6 if result.measure != "dsa" else (v - lo) / (hi - lo) < 0.4
+            ax.text(c, r, f"{v:.2f}", ha="center", va="center", fontsize=6, color="k" if light else "w")
         seeds = " (seeds)" if result.same_seed_group(i, j) else ""
         ax.set_title(f"{result.networks[i].name} vs {result.networks[j].name}{seeds}", fontsize=9)
         fig.colorbar(image, ax=ax, fraction=0.046, label=label)

@@ -182,10 +182,15 @@ def _rollout(run: LoadedRun, episodes: int, steps: int, seed: int, deterministic
                 "metrics": nxt.metrics,
                 **activity,
             }
+            if env.mj_model.nmocap:  # the gaps corridor's platforms move with the walker
+                out["mocap_pos"] = state.data.mocap_pos
             return (nxt, core, alive * (1.0 - nxt.done)), out
 
         keys = jax.random.split(k_act, steps)
         _, out = jax.lax.scan(body, (state, initial_core(run, (episodes,)), jp.ones((episodes,))), keys)
+        layout = state.info.get("layout") if isinstance(state.info, dict) else None
+        if layout is not None:  # a gaps corridor: each episode's platforms, (episodes, platforms)
+            out["layout_start"], out["layout_length"] = layout.start, layout.length
         return out
 
     return jax.device_get(go(jax.random.PRNGKey(seed)))
@@ -232,10 +237,13 @@ def _dataset(run: LoadedRun, raw: dict[str, Any], episodes: int, steps: int, see
             "qvel": (dims_et + ("qvel_index",), _et(raw["qvel"])),
             "body_pos": (dims_et + ("body", "xyz"), _et(raw["body_pos"])),
             "body_quat": (dims_et + ("body", "wxyz"), _et(raw["body_quat"])),
+            "body_parent": (("body",), np.asarray(m.body_parentid, np.int32)),
         }
     )
     for k, v in raw["metrics"].items():
         data[k.replace("/", "_")] = (dims_et, _et(v))
+    behaviour_vars, behaviour_coords, behaviour_attrs = _behaviour(env, raw)
+    data.update({k: (dims, v) for k, (dims, v, _) in behaviour_vars.items()})
     layers = []
     for k in sorted(raw):
         if k.startswith(("policy_", "value_")):
@@ -260,6 +268,7 @@ def _dataset(run: LoadedRun, raw: dict[str, Any], episodes: int, steps: int, see
             "wxyz": ["w", "x", "y", "z"],
             "qpos_index": _dof_labels(m, qpos=True),
             "qvel_index": _dof_labels(m, qpos=False),
+            **behaviour_coords,
         },
         attrs={
             "title": f"vnl neural recording of {run.config.env}",
@@ -274,8 +283,11 @@ def _dataset(run: LoadedRun, raw: dict[str, Any], episodes: int, steps: int, see
             "layers": json.dumps(layers),
             "timing": "time t: observation, activity, action and pose in state s_t; reward of s_t -> s_{t+1}",
             "active": "1 up to and including the step at which the episode ended",
+            **behaviour_attrs,
         },
     )
+    for k, (_, _, var_attrs) in behaviour_vars.items():
+        ds[k].attrs.update(var_attrs)
     for k in raw["metrics"]:
         ds[k.replace("/", "_")].attrs["metric"] = k
     for layer in layers:
@@ -283,6 +295,17 @@ def _dataset(run: LoadedRun, raw: dict[str, Any], episodes: int, steps: int, see
         kind = "output layer (raw)" if name.endswith("_output") else "hidden layer after the nonlinearity"
         ds[name].attrs["description"] = kind
     return ds
+
+
+def _behaviour(env: Any, raw: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any]]:
+    """`vnl.behaviour.variables` of the rollout's host arrays (steps first), episode-major."""
+    from vnl import behaviour
+
+    per_step = ("qpos", "qvel", "body_pos", "body_quat", "active", "done", "mocap_pos")
+    arrays = {k: _et(raw[k]) for k in per_step if k in raw}
+    arrays["metrics"] = {k: _et(v) for k, v in raw["metrics"].items()}
+    arrays.update({k: np.asarray(raw[k]) for k in ("layout_start", "layout_length") if k in raw})
+    return behaviour.variables(env, arrays)
 
 
 def _dof_labels(m: Any, qpos: bool) -> list[str]:

@@ -1,5 +1,5 @@
-"""`vnl compare NETWORK NETWORK ...`: representational similarity (CKA, RSA) of networks shown the
-same episodes."""
+"""`vnl compare NETWORK NETWORK ...`: representational similarity (CKA, RSA, rsatoolbox's RDM
+comparisons) and dynamical similarity (DSA) of networks shown the same episodes."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from vnl.errors import VnlError
 
 def add(sub: Any) -> None:
     p = options.command(
-        sub, "compare", "representational similarity (CKA, RSA) of networks on the same episodes", run, check
+        sub, "compare", "representational (CKA, RSA, RDM) and dynamical (DSA) similarity of networks", run, check
     )
     p.add_argument("networks", nargs="+", metavar="NETWORK", help="RUN_DIR, RUN_DIR@STEP|best, or a recording")
     p.add_argument("--recording", help="the episodes every network sees (default: the first recording given, else new)")
@@ -25,16 +25,43 @@ def add(sub: Any) -> None:
         "--steps", type=options.POSITIVE, help="steps per episode of a new recording (default: episode length)"
     )
     p.add_argument("--seed", type=options.NON_NEGATIVE, default=0, help="seed of a new recording")
-    p.add_argument("--rsa", metavar="DISTANCE", help="RSA with this distance (e.g. correlation) instead of linear CKA")
     p.add_argument(
-        "--max-samples", type=options.POSITIVE, default=2000, help="RSA: at most this many steps (evenly spaced)"
+        "--measure",
+        choices=("cka", "rsa", "rdm", "dsa"),
+        help="cka: linear CKA (default); rsa: Spearman of scipy RDMs (--distance); rdm: rsatoolbox's RDMs "
+        "(--distance: correlation, euclidean, ...) compared with --rdm-comparison; dsa: Dynamical Similarity "
+        "Analysis of each layer's time series (an angular distance: 0 for the same dynamics)",
+    )
+    p.add_argument("--rsa", metavar="DISTANCE", help="RSA with this distance (e.g. correlation): --measure rsa")
+    p.add_argument("--distance", default="correlation", help="rsa and rdm: the dissimilarity (default correlation)")
+    p.add_argument(
+        "--rdm-comparison",
+        default="cosine",
+        help="rdm: rsatoolbox's comparison of two RDMs: cosine (default), corr, spearman, tau-a, rho-a",
+    )
+    p.add_argument("--delays", type=options.POSITIVE, default=10, help="dsa: delays of the Hankel embedding (10)")
+    p.add_argument("--rank", type=options.POSITIVE, default=20, help="dsa: rank of the linear operator (20)")
+    p.add_argument(
+        "--max-samples", type=options.POSITIVE, default=2000, help="rsa, rdm: at most this many steps (evenly spaced)"
     )
     p.add_argument("--out", help="heatmap PNG (default <first run>/compare_<measure>.png; a .json beside it)")
     options.cache_flags(p)
 
 
+def measure_of(args: argparse.Namespace) -> str:
+    """--measure, or rsa with --rsa DISTANCE (the older spelling), else cka."""
+    if args.rsa and args.measure not in (None, "rsa"):
+        raise VnlError(f"--rsa asks for RSA; it cannot be combined with --measure {args.measure}")
+    return "rsa" if args.rsa else args.measure or "cka"
+
+
 def check(args: argparse.Namespace) -> None:
     checks.output_file(args.out)
+    measure = measure_of(args)
+    if measure == "rdm":
+        from vnl.neuro import similarity
+
+        similarity.check(args.distance, args.rdm_comparison)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -42,18 +69,22 @@ def run(args: argparse.Namespace) -> int:
 
     if len(args.networks) < 2:
         raise VnlError("vnl compare needs at least two networks (run directories, RUN_DIR@STEP or recordings)")
-    measure = "rsa" if args.rsa else "cka"
-    if args.rsa:
-        compare.check_distance(args.rsa)
+    measure = measure_of(args)
+    distance = args.rsa or args.distance
+    if measure == "rsa":
+        compare.check_distance(distance)
     sources = [compare.parse_source(text) for text in args.networks]
     out = Path(args.out) if args.out else sources[0].run_dir / f"compare_{measure}.png"
     checks.output_file(str(out))
     ds, source = compare.shared_recording(sources, args.recording, args.episodes, args.steps, args.seed, process.say)
     obs, mask = compare.observations(ds)
-    if measure == "rsa":  # RDMs grow with the square of the samples
+    if measure in ("rsa", "rdm"):  # RDMs grow with the square of the samples
         mask = compare.subsample(mask, args.max_samples)
+    if measure == "dsa":  # time series: each episode's first steps, as many as the shortest has
+        mask, _ = compare.trial_mask(mask, args.delays + 2)
     nets = [compare.network(s, obs, mask, n) for s, n in zip(sources, compare.names(sources), strict=True)]
-    result = compare.compare(nets, measure, args.rsa or "correlation", source)
+    trials = int(mask.any(axis=1).sum())
+    result = compare.compare(nets, measure, distance, source, args.rdm_comparison, trials, args.delays, args.rank)
     print(compare.table(result))
     compare.heatmap(result, out)
     out.with_suffix(".json").write_text(json.dumps(result.to_json(), indent=1))

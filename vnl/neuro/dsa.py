@@ -1,0 +1,154 @@
+"""Dynamical Similarity Analysis (`vnl compare --measure dsa`).
+
+Ostrow, Eisen, Kozachkov and Fiete (2023), "Beyond Geometry: Comparing the Temporal Structure of
+Computation in Neural Circuits with Dynamical Similarity Analysis" (NeurIPS): two systems are
+similar when their linearised dynamics are the same up to a change of coordinates.
+
+1. Delay embedding: each system's activity x (trials, time, units) becomes the Hankel matrix of
+   `n_delays` consecutive states, (trials, time - n_delays + 1, units * n_delays).
+2. HAVOK/DMD: the rows of the Hankel matrix (all trials) are projected on its first `rank` right
+   singular vectors V; the linear operator A (rank, rank) is the least-squares fit of
+   V[t + 1] = A V[t] within each trial.
+3. Procrustes over vector fields: the distance of A and B is
+   min over orthogonal C of || A/|A| - C (B/|B|) C^T ||_F, and the angular score used here is
+   arccos(tr(A^T C B C^T) / (|A| |B|)) at that C, in [0, pi]: 0 for the same dynamics in rotated
+   coordinates. Ranks that differ are zero-padded.
+
+The optimisation over C has no closed form; as in the reference implementation (dsa-metric), C is
+optimised with Adam (optax, 1500 steps, learning rate 5e-3) from a start in each of the two
+components of the orthogonal group (C = expm(S) and C = P expm(S), S skew-symmetric, P a
+reflection), and here also from a few random orthogonal starts (the objective has local minima),
+keeping the best. dsa-metric parameterises SO(n) with a Cayley map through a small network; the
+matrix exponential here reaches all of SO(n). benchmarks/dsa_check.py compares both on the same
+systems (docs/how-to/neurophysiology.md).
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+
+from vnl.errors import VnlError
+
+
+def hankel(x: np.ndarray, n_delays: int) -> np.ndarray:
+    """Delay embedding of x (trials, time, units): (trials, time - n_delays + 1, units * n_delays),
+    row t holding x[t + n_delays - 1], ..., x[t] (newest first, as dsa-metric orders them)."""
+    x = np.asarray(x, np.float64)
+    if x.ndim == 2:
+        x = x[None]
+    if x.ndim != 3:
+        raise VnlError(f"DSA takes (trials, time, units) arrays, got shape {x.shape}")
+    k, t, n = x.shape
+    if n_delays < 1 or t - n_delays + 1 < 2:
+        raise VnlError(f"{t} time steps are too few for {n_delays} delays (need at least n_delays + 1)")
+    width = t - n_delays + 1
+    return np.concatenate([x[:, n_delays - 1 - d : n_delays - 1 - d + width] for d in range(n_delays)], axis=-1)
+
+
+def havok(x: np.ndarray, n_delays: int = 10, rank: int = 20, ridge: float = 0.0) -> np.ndarray:
+    """The linear operator A (r, r) of x (trials, time, units) in its Hankel matrix's first r =
+    min(rank, embedding width, samples) singular coordinates (dsa-metric's `DMD.A_v`)."""
+    h = hankel(x, n_delays)
+    k, t, d = h.shape
+    _, s, vt = np.linalg.svd(h.reshape(k * t, d).T, full_matrices=False)
+    r = int(min(rank, np.sum(s > s[0] * 1e-12)))
+    v = vt.T[:, :r]
+    # Singular vectors have arbitrary signs: make each column's largest entry positive, so that
+    # systems that differ only by a rotation of their units get the same coordinates.
+    v = v * np.sign(v[np.argmax(np.abs(v), axis=0), np.arange(r)])
+    v = v.reshape(k, t, r)
+    before, after = v[:, :-1].reshape(-1, r), v[:, 1:].reshape(-1, r)
+    a = np.linalg.solve(before.T @ before + ridge * np.eye(r), before.T @ after)
+    return a.T
+
+
+def _pad(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    n = max(len(a), len(b))
+    out = []
+    for m in (a, b):
+        z = np.zeros((n, n))
+        z[: len(m), : len(m)] = m
+        out.append(z)
+    return out[0], out[1]
+
+
+@functools.cache
+def _optimiser(n: int, iters: int, lr: float):  # noqa: ANN202 (a jitted function)
+    """A jitted Adam descent of || a - C b C^T ||^2 over C = C0 expm(S), S skew-symmetric, from
+    S = 0, for a batch of starting points C0 (starts, n, n): returns (C, loss) per start."""
+    import jax
+    import jax.numpy as jp
+    import optax
+
+    opt = optax.adam(lr)
+
+    def transform(w: jax.Array, c0: jax.Array) -> jax.Array:
+        return c0 @ jax.scipy.linalg.expm(w - w.T)
+
+    def loss(w: jax.Array, a: jax.Array, b: jax.Array, c0: jax.Array) -> jax.Array:
+        c = transform(w, c0)
+        return jp.sum((a - c @ b @ c.T) ** 2)
+
+    def descend(a: jax.Array, b: jax.Array, c0: jax.Array) -> tuple[jax.Array, jax.Array]:
+        def step(carry: tuple, _: None) -> tuple:
+            w, state = carry
+            g = jax.grad(loss)(w, a, b, c0)
+            updates, state = opt.update(g, state, w)
+            return (optax.apply_updates(w, updates), state), None
+
+        w0 = jp.zeros((n, n), a.dtype)
+        (w, _), _ = jax.lax.scan(step, (w0, opt.init(w0)), None, length=iters)
+        return transform(w, c0), loss(w, a, b, c0)
+
+    return jax.jit(jax.vmap(descend, in_axes=(None, None, 0)))
+
+
+def _starts(n: int, restarts: int, seed: int) -> np.ndarray:
+    """Starting points (restarts + 2, n, n): the identity, a reflection, and `restarts` random
+    orthogonal matrices (Haar, a fixed seed)."""
+    reflection = np.eye(n)
+    reflection[0, 0] = -1.0
+    out = [np.eye(n), reflection]
+    rng = np.random.default_rng(seed)
+    for _ in range(restarts):
+        q, r = np.linalg.qr(rng.normal(size=(n, n)))
+        out.append(q * np.sign(np.diag(r)))
+    return np.stack(out).astype(np.float32)
+
+
+def procrustes(
+    a: np.ndarray, b: np.ndarray, iters: int = 1500, lr: float = 5e-3, restarts: int = 6, seed: int = 0
+) -> tuple[float, np.ndarray]:
+    """The angular Procrustes distance over vector fields of the square matrices a and b (zero-
+    padded to one size): (arccos(tr(a^T C b C^T) / (|a| |b|)) in [0, pi], the orthogonal C).
+
+    C is optimised from the identity, a reflection (the other component of O(n)) and `restarts`
+    random orthogonal matrices; the best is kept (the objective has local minima)."""
+    a, b = _pad(np.asarray(a, np.float64), np.asarray(b, np.float64))
+    na, nb = np.linalg.norm(a), np.linalg.norm(b)
+    if na == 0 or nb == 0:
+        return float("nan"), np.eye(len(a))
+    a, b = (a / na).astype(np.float32), (b / nb).astype(np.float32)
+    run = _optimiser(len(a), int(iters), float(lr))
+    cs, losses = run(a, b, _starts(len(a), restarts if len(a) > 1 else 0, seed))
+    c = np.asarray(cs[int(np.argmin(np.asarray(losses)))], np.float64)
+    cos = np.trace(a.T.astype(np.float64) @ c @ b @ c.T)
+    return float(np.arccos(np.clip(cos, -1.0, 1.0))), c
+
+
+def dsa(x: np.ndarray, y: np.ndarray, n_delays: int = 10, rank: int = 20, iters: int = 1500, lr: float = 5e-3) -> float:
+    """The DSA angular distance (radians, in [0, pi]) of two systems' activity x (trials, time,
+    units) and y (trials', time', units'): any two networks' layers, of any sizes."""
+    return procrustes(havok(x, n_delays, rank), havok(y, n_delays, rank), iters, lr)[0]
+
+
+def dsa_matrix(
+    xs: dict[str, np.ndarray], ys: dict[str, np.ndarray], n_delays: int = 10, rank: int = 20, iters: int = 1500
+) -> np.ndarray:
+    """DSA distances of every system in `xs` to every system in `ys` (name -> (trials, time,
+    units)): a matrix (len(xs), len(ys)); each operator is fitted once."""
+    fa = [havok(x, n_delays, rank) for x in xs.values()]
+    fb = [havok(y, n_delays, rank) for y in ys.values()]
+    return np.array([[procrustes(a, b, iters)[0] for b in fb] for a in fa])
