@@ -87,6 +87,10 @@ class Parent:
         location = self.arrays.get(".training.params.policy['params']['Dense_0']['bias']")
         if location is not None:  # network.distribution_type normal: a location per action
             return width, int(location.shape[-1])
+        head = self.arrays.get(".training.params.policy['params']['output']['bias']")
+        if head is not None:  # a recurrent core's head: a location (and with tanh_normal a scale) per action
+            scale_param = any("['std_" in k for k in self.arrays if k.startswith(".training.params.policy"))
+            return width, int(head.shape[-1]) // (1 if scale_param else 2)
         outputs = [
             (int(m.group(1)), v)
             for k, v in self.arrays.items()
