@@ -15,6 +15,9 @@ how the jax 0.8.2 stack (Python 3.11, the tree before the upgrade) was compared 
 (Until 2026-11-26 this script compared `vnl train` with Brax's own `ppo.train` in one process;
 that needs jax < 0.10. Its results, measured on jax 0.8.2, are on docs/benchmarks/index.md.)
 
+`--compare variants --variants mlp= lstm=network.core=lstm` compares config variants of this
+checkout and stack the same way (e.g. the cost of a recurrent core).
+
 `--compare physics` instead times `vnl train` with MuJoCo C physics (`impl: c`) against MJX
 (`impl: jax`) on the env's cpu preset, in this process, alternating the two (`--rounds` pairs).
 Each run's speed is the median `training/sps` over its epochs; the C/MJX ratio is the median of
@@ -40,8 +43,11 @@ from vnl.train import config as train_config
 from vnl.train import trainer
 
 
-def stack_run(python: str, tree: Path, env: str, steps: int, evals: int, cache: Path) -> list[float]:
-    """`vnl train ENV` with `python` in `tree` (a subprocess): the run's per-epoch training/sps."""
+def stack_run(
+    python: str, tree: Path, env: str, steps: int, evals: int, cache: Path, sets: tuple[str, ...] = ()
+) -> list[float]:
+    """`vnl train ENV` (with `--set` `sets`) by `python` in `tree` (a subprocess): the run's
+    per-epoch training/sps."""
     import json
     import os
     import subprocess
@@ -49,6 +55,7 @@ def stack_run(python: str, tree: Path, env: str, steps: int, evals: int, cache: 
     with tempfile.TemporaryDirectory() as d:
         cmd = [python, "-m", "vnl", "train", env, "--preset", "cpu", "--steps", str(steps), "--no-video"]
         cmd += ["--set", f"ppo.num_evals={evals}", "--out", f"{d}/run", "--compile-cache", str(cache)]
+        cmd += [x for a in sets for x in ("--set", a)]
         done = subprocess.run(
             cmd, cwd=tree, capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(tree)}
         )
@@ -58,28 +65,36 @@ def stack_run(python: str, tree: Path, env: str, steps: int, evals: int, cache: 
     return [r["training/sps"] for r in records if r.get("training/sps")]
 
 
-def compare_stacks(envs: list[str], stacks: list[str], steps: int, evals: int, rounds: int) -> None:
-    """Alternating rounds of `stack_run` per env; prints each run and the medians."""
-    pairs = [(s.rsplit(":", 1)[0], Path(s.rsplit(":", 1)[1]).resolve()) for s in stacks]
+def compare_stacks(
+    envs: list[str], stacks: list[str], steps: int, evals: int, rounds: int, variants: list[str] | None = None
+) -> None:
+    """Alternating rounds of `stack_run` per env, over stacks (PYTHON:TREE) or, with `variants`
+    (NAME=SET,SET...; this stack), over config variants; prints each run and the medians."""
+    if variants:
+        runs = [
+            (sys.executable, Path(".").resolve(), tuple(filter(None, v.split("=", 1)[1].split(",")))) for v in variants
+        ]
+        labels = [v.split("=", 1)[0] for v in variants]
+    else:
+        runs = [(s.rsplit(":", 1)[0], Path(s.rsplit(":", 1)[1]).resolve(), ()) for s in stacks]
+        labels = [f"{p} in {t}" for p, t, _ in runs]
     with tempfile.TemporaryDirectory() as caches:
         for env in envs:
             print(f"{env}: cpu preset, {steps:,} steps, {evals - 1} epochs per run; env steps/s (median of epochs)")
-            speed: dict[int, list[float]] = {i: [] for i in range(len(pairs))}
-            for i, (python, tree) in enumerate(pairs):  # each stack's compilation cache, untimed
-                stack_run(python, tree, env, steps, evals, Path(caches) / f"{env}-{i}")
+            speed: dict[int, list[float]] = {i: [] for i in range(len(runs))}
+            for i, (python, tree, sets) in enumerate(runs):  # each one's compilation cache, untimed
+                stack_run(python, tree, env, steps, evals, Path(caches) / f"{env}-{i}", sets)
             for r in range(rounds):
-                for i, (python, tree) in enumerate(pairs):
-                    sps = stack_run(python, tree, env, steps, evals, Path(caches) / f"{env}-{i}")
+                for i, (python, tree, sets) in enumerate(runs):
+                    sps = stack_run(python, tree, env, steps, evals, Path(caches) / f"{env}-{i}", sets)
                     speed[i].append(statistics.median(sps))
-                    print(
-                        f"  round {r + 1} stack {i} ({python} in {tree}): {', '.join(f'{x:,.0f}' for x in sps)}",
-                        flush=True,
-                    )
+                    sps_text = ", ".join(f"{x:,.0f}" for x in sps)
+                    print(f"  round {r + 1} {i} ({labels[i]}): {sps_text}", flush=True)
             medians = [statistics.median(v) for v in speed.values()]
             for i, m in enumerate(medians):
-                print(f"  stack {i}: {m:,.0f} env steps/s (median of {rounds} rounds)")
+                print(f"  {i} ({labels[i]}): {m:,.0f} env steps/s (median of {rounds} rounds)")
             if len(medians) == 2:
-                print(f"  ratio stack 1 / stack 0: {medians[1] / medians[0]:.3f}", flush=True)
+                print(f"  ratio 1 / 0: {medians[1] / medians[0]:.3f}", flush=True)
 
 
 def compare_physics(env: str, steps: int, repeats: int) -> None:
@@ -124,14 +139,20 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=400_000)
     parser.add_argument("--evals", type=int, default=5, help="ppo.num_evals of each run (epochs + 1)")
     parser.add_argument("--rounds", type=int, default=3, help="alternating rounds (CPU speed drifts)")
-    parser.add_argument("--compare", choices=["stacks", "physics"], default="stacks")
+    parser.add_argument("--compare", choices=["stacks", "variants", "physics"], default="stacks")
+    parser.add_argument(
+        "--variants",
+        nargs="+",
+        metavar="NAME=SET,SET",
+        help="with --compare variants: e.g. mlp= lstm=network.core=lstm",
+    )
     parser.add_argument("--stacks", nargs="+", default=[f"{sys.executable}:."], metavar="PYTHON:TREE")
     args = parser.parse_args()
     if args.compare == "physics":
         for env in args.envs:
             compare_physics(env, args.steps, args.rounds)
         return
-    compare_stacks(args.envs, args.stacks, args.steps, args.evals, args.rounds)
+    compare_stacks(args.envs, args.stacks, args.steps, args.evals, args.rounds, args.variants)
 
 
 if __name__ == "__main__":
