@@ -15,6 +15,9 @@ import reference  # noqa: E402  (scripts/docs/reference.py)
 import results  # noqa: E402  (scripts/docs/results.py)
 
 from vnl.cli import build_parser  # noqa: E402
+from vnl.cli.process import configure_process  # noqa: E402
+
+configure_process()  # as the CLI: headless OpenGL, quiet third-party deprecations (jaxopt through brax)
 
 with mkdocs_gen_files.open("reference/cli.md", "w") as f:
     f.write(reference.cli_markdown(build_parser()))
@@ -34,3 +37,18 @@ for name in names:
 for page, content in results.pages(Path(__file__).resolve().parents[2] / "docs").items():
     with mkdocs_gen_files.open(page, "wb" if isinstance(content, bytes) else "w") as f:
         f.write(content)
+
+# The tutorials with their outputs: the notebook tests (tests/test_notebook.py) execute each
+# tutorial and write it to build/notebooks/; the site shows that copy when its cells are the
+# tutorial's own (else the tutorial as written, without outputs).
+ROOT = Path(__file__).resolve().parents[2]
+for source in sorted((ROOT / "docs" / "tutorials").glob("*.ipynb")):
+    executed = ROOT / "build" / "notebooks" / source.name
+    if executed.is_file():
+        import json
+
+        cells = [(c["cell_type"], "".join(c["source"])) for c in json.loads(source.read_text())["cells"]]
+        ran = json.loads(executed.read_text())
+        if [(c["cell_type"], "".join(c["source"])) for c in ran["cells"]] == cells:
+            with mkdocs_gen_files.open(f"tutorials/{source.name}", "w") as f:
+                f.write(executed.read_text())
