@@ -11,11 +11,13 @@ from __future__ import annotations
 import dataclasses
 import types
 import typing
-from typing import Any
+from typing import Any, TypeVar
 
 import yaml
 
 from vnl.errors import VnlError
+
+C = TypeVar("C")
 
 
 class FrozenDict(dict):
@@ -119,7 +121,7 @@ def _coerce(value: Any, tp: Any, key: str) -> Any:
     raise TypeError(f"unsupported config annotation {tp!r} for {key}")
 
 
-def from_dict[C](cls: type[C], values: dict[str, Any], prefix: str = "") -> C:
+def from_dict(cls: type[C], values: dict[str, Any], prefix: str = "") -> C:
     """Builds a `cls` dataclass from `values`; unknown keys and bad types raise `VnlError`."""
     if not isinstance(values, dict):
         raise VnlError(f"{prefix.rstrip('.') or 'config'}: expected a mapping, got {values!r}")
@@ -174,7 +176,7 @@ def merge(base: dict[str, Any], update: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def override[C](config: C, updates: dict[str, Any]) -> C:
+def override(config: C, updates: dict[str, Any]) -> C:
     """A new config: `config` with `updates` (nested dict) applied and re-validated."""
     return from_dict(type(config), merge(to_dict(config), updates))
 

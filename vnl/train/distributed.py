@@ -16,8 +16,11 @@ from __future__ import annotations
 
 import re
 from collections.abc import Callable
+from typing import TypeVar
 
 from vnl.errors import VnlError
+
+T = TypeVar("T")
 
 
 def initialize(
@@ -83,7 +86,7 @@ def process_count() -> int:
     return jax.process_count()
 
 
-def on_lead[T](fn: Callable[[], T]) -> T | None:
+def on_lead(fn: Callable[[], T]) -> T | None:
     """Runs `fn` on process 0 only. If it raises, every process stops (process 0 with the error,
     the others with a `VnlError` pointing at process 0), so no process is left waiting in a
     collective for one that stopped. Every process must call it."""
