@@ -27,7 +27,8 @@ def load(path: Path = RESULTS) -> dict[str, Any]:
 
 
 def ordered(data: dict[str, Any]) -> list[str]:
-    return [e for e in ORDER if e in data] + sorted(e for e in data if e not in ORDER)
+    """Every env in ORDER (measured or not), then any other env the file holds."""
+    return ORDER + sorted(e for e in data if e not in ORDER)
 
 
 def _trained(entry: dict[str, Any], key: str) -> list[float]:
@@ -89,6 +90,22 @@ def card(entry: dict[str, Any]) -> str:
     return "\n".join(out)
 
 
+def pending_card(env: str) -> str:
+    """The card of an env in ORDER that results.json has no entry for yet: how to measure it."""
+    command = f".venv/bin/python benchmarks/learning.py --out runs/learning --envs {env} --results {RESULTS.relative_to(ROOT)}"
+    return "\n".join([
+        f"# {env}",
+        "",
+        f"Not measured yet: docs/results/results.json has no entry for {env}. The environment: "
+        f"[reference](../reference/envs/{env}.md). To measure its `cpu` preset and add this card:",
+        "",
+        "```bash",
+        command,
+        "```",
+        "",
+    ])  # fmt: skip
+
+
 def curves_png(entry: dict[str, Any]) -> bytes:
     """The eval reward and the first task measure against env steps, one line per seed (PNG)."""
     from matplotlib.figure import Figure
@@ -110,20 +127,25 @@ def curves_png(entry: dict[str, Any]) -> bytes:
     return buf.getvalue()
 
 
-def expect_table(data: dict[str, Any]) -> str:
+def expect_table(data: dict[str, Any], link: bool = False) -> str:
     """README's "what to expect": env; what its cpu preset learns (the task's first measure, mean
-    over seeds); CPU minutes; GPU."""
+    over seeds); CPU minutes; GPU. `link`: each env links to its card (on the site, where the
+    cards are generated; the README names them only)."""
     out = ["| env | what the `cpu` preset learns (mean over seeds) | CPU minutes | GPU |", "|---|---|---:|---|"]
     for env in ordered(data):
+        name = f"[{env}]({env}.md)" if link else env
+        if env not in data:
+            out.append(f"| {name} | not measured yet | | not measured |")
+            continue
         entry = data[env]
         label, key, spec = entry["measures"][1]
         mean, _ = _mean_range(_trained(entry, key), spec)
         gpu = entry.get("gpu") or "not measured"
         out.append(
-            f"| [{env}](docs/results/{env}.md) | {label}: {mean} ({len(entry['seeds'])} seeds) "
+            f"| {name} | {label}: {mean} ({len(entry['seeds'])} seed{'s' if len(entry['seeds']) > 1 else ''}) "
             f"| {statistics.mean(_minutes(entry)):.0f} | {gpu} |"
         )
-    machines = sorted({data[e]["machine"] for e in data})
+    machines = sorted({data[e]["machine"] for e in data}) or ["no machine yet"]
     out += ["", f"Measured on {'; '.join(machines)} (dates and commands: the result cards)."]
     return "\n".join(out)
 
@@ -136,7 +158,7 @@ def overview(data: dict[str, Any]) -> str:
         "docs/results/results.json` (one run per seed, one after another). Every number on these pages is read",
         "from that file when the site is built; each card names its machine, date, commit and command.",
         "",
-        expect_table(data).replace("](docs/results/", "]("),
+        expect_table(data, link=True),
         "",
     ]
     return "\n".join(out)
@@ -147,6 +169,9 @@ def pages(docs: Path) -> dict[str, str | bytes]:
     data = load(docs / "results" / "results.json")
     out: dict[str, str | bytes] = {"results/index.md": overview(data)}
     for env in ordered(data):
+        if env not in data:
+            out[f"results/{env}.md"] = pending_card(env)
+            continue
         out[f"results/{env}.md"] = card(data[env])
         out[f"results/{env}_curves.png"] = curves_png(data[env])
     return out
