@@ -19,7 +19,14 @@ def add(sub: Any) -> None:
 
 def check(args: argparse.Namespace) -> None:
     checks.input_file(args.recording, "recording")
-    checks.output_file(args.out)
+    if args.out or args.layer:
+        checks.output(args.out or default_out(args, args.layer), checks.FIGURES, [args.recording], bool(args.out))
+    else:  # the default layer's name is read from the recording: its folder is checked now
+        checks.output(default_out(args, "policy_hidden_0"), checks.FIGURES, [args.recording], given=False)
+
+
+def default_out(args: argparse.Namespace, layer: str) -> str:
+    return str(Path(args.recording).with_name(f"pca_{layer}.png"))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -28,7 +35,8 @@ def run(args: argparse.Namespace) -> int:
     ds = analysis.open_recording(args.recording)
     layer = args.layer or analysis.default_layer(ds)
     color = args.color or ("x_velocity" if "x_velocity" in ds else "reward")
-    out = args.out or str(Path(args.recording).with_name(f"pca_{layer}.png"))
+    out = args.out or default_out(args, layer)
+    checks.output(out, checks.FIGURES, [args.recording], given=bool(args.out))
     path, ratio = analysis.pca_figure(ds, layer, color, out)
     shares = ", ".join(f"PC{i + 1} {100 * r:.1f}%" for i, r in enumerate(ratio))
     print(f"PCA of {layer} coloured by {color} ({shares} of variance): {path}")
