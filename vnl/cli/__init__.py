@@ -51,7 +51,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        args.check(args)
+        _check(args)
         if args.mujoco:
             headless.check()  # before MuJoCo and dm_control read it (they raise inside their import)
         args.gl = process.configure_process(mujoco_needed=args.mujoco)
@@ -62,6 +62,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 130
     except Exception as e:  # noqa: BLE001 - what is not described below is re-raised
         return _failed(e)
+
+
+def _check(args: argparse.Namespace) -> None:
+    """The command's input checks; a path the OS refuses to look at (a name too long, a loop of
+    symlinks, a folder above it that may not be searched) is a mistake on the command line too."""
+    try:
+        args.check(args)
+    except OSError as e:
+        name = str(e.filename or "")
+        shown = name if len(name) <= 120 else f"{name[:60]}...{name[-40:]} ({len(name):,} characters)"
+        raise VnlError(f"{shown}: {e.strerror or e}; check the path") from None
 
 
 def _failed(e: Exception) -> int:
