@@ -122,6 +122,7 @@ if POINT:
     metrics.JsonlWriter.write = write
     before(plot, "learning_curve", "curve")
     after(rundir, "set_aside_later_checkpoints", "set-aside")
+    after(rundir, "truncate_metrics", "cut")
     before(durable, "replace", "cutting", lambda src, dst: str(dst).endswith("metrics.jsonl"))
 
 DIVERGE = int(os.environ.get("VNL_TEST_DIVERGE_AT", "0"))
@@ -354,12 +355,14 @@ def test_sigkill_at_a_named_point_loses_nothing_and_resumes_exactly(launcher, re
     assert not [p for p in checkpoint.checkpoint_dir(run).iterdir() if p.name.startswith((".tmp-", ".deleting-"))]
 
 
-@pytest.mark.parametrize("point", ["set-aside:1", "cutting:1"])
+@pytest.mark.parametrize("point", ["set-aside:1", "cutting:1", "cut:1"])
 def test_sigkill_inside_a_resume_s_rewind_loses_nothing(launcher, reference, tmp_path, point):
     """`--resume --from-step` sets the later checkpoints aside and cuts metrics.jsonl back:
-    killed between the two, or while the cut file is renamed into place, the next plain resume
-    starts from the same step and the run ends as the uninterrupted one (the later records kept
-    in a backup, the later checkpoints in superseded-*)."""
+    killed between the two, while the cut file is renamed into place, or right after the cut,
+    the next plain resume starts from the same step and the run ends as the uninterrupted one
+    (the later records kept in a backup, the later checkpoints in superseded-*). (Cutting the
+    metrics first, as vnl did, a kill after the cut left the later checkpoints in place: the next
+    resume went on from the newest one with the metrics between them lost.)"""
     run = tmp_path / "run"
     shutil.copytree(reference, run)
     middle = checkpoint.steps(reference)[0]  # the oldest kept checkpoint (keep_checkpoints: 3)

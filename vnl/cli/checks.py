@@ -48,6 +48,8 @@ def input_file(path: str, what: str) -> None:
     device) and is readable."""
     p = Path(path)
     if not p.exists():
+        if p.is_symlink():
+            raise VnlError(f"{what} {path} is a symbolic link to nothing (its target is missing, or links loop)")
         raise VnlError(f"{what} not found: {path}")
     if p.is_dir():
         raise VnlError(f"{what} {path} is a directory; give the path of a file")

@@ -30,10 +30,11 @@ def run_files_in(directory: str | Path) -> list[str]:
 
 def is_run_managed(path: str | Path) -> bool:
     """Whether `path` is (or lies under) something `vnl train` writes and reads back in a run
-    directory (one holding config.yaml): the config, metrics, checkpoints, the lock, ..."""
+    directory (one holding config.yaml and metrics.jsonl, checkpoints or the lock): the config,
+    metrics, checkpoints, the lock, ..."""
     p = Path(path)
     for parent in [p.parent, *p.parent.parents]:
-        if (parent / CONFIG).is_file():
+        if (parent / CONFIG).is_file() and any((parent / name).exists() for name in (METRICS, CHECKPOINTS, LOCK)):
             name = p.relative_to(parent).parts[0]
             return name in RUN_FILES or name == LOCK or (name.startswith(f"{METRICS}.") and name.endswith(".bak"))
     return False

@@ -342,6 +342,8 @@ def build(
     file_values = dict(file_values or {})
     if "env" in file_values and file_values["env"] != env:
         raise VnlError(f"the config file is for env {file_values['env']!r} but {env!r} was asked for")
+    if "preset" in file_values:  # checked even when --preset overrides it: never silently ignored
+        presets.check_name(file_values["preset"])
     preset = presets.check_name(preset or file_values.get("preset") or default_preset())
     values: dict[str, Any] = config_lib.merge({"env": env, "preset": preset}, presets.resolve(env, preset))
     values = config_lib.merge(values, file_values)
