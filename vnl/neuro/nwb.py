@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from vnl import durable
 from vnl.errors import VnlError
 
 SPECIES = {  # walker -> (species, NWB's binomial or NCBI taxonomy form)
@@ -283,12 +284,12 @@ def write(
     )
     for table in _intervals(ds, episode, time, first, dt):
         nwb.add_time_intervals(table)
-    path = Path(path)
-    tmp = path.with_name(f".{path.stem}.partial.nwb")  # pynwb warns about names not ending in .nwb
-    with NWBHDF5IO(str(tmp), "w") as io:
-        io.write(nwb)
-    tmp.replace(path)
-    return path
+
+    def writer(tmp: Path) -> None:  # the temporary name keeps .nwb: pynwb warns about others
+        with NWBHDF5IO(str(tmp), "w") as io:
+            io.write(nwb)
+
+    return durable.write_atomic(Path(path), writer=writer)
 
 
 def inspect(path: str | Path) -> list[Any]:
