@@ -372,6 +372,36 @@ def generated_cases(ro: Path) -> list[Case]:
             (["render", "run", "--out", "a_dir"], "is a directory"),
         )
     ]
+    # the recording commands' formats and methods (NWB, encoding/decoding/states, rdm/dsa)
+    cases += [
+        Case("neuro", argv, expect, light=light)
+        for argv, expect, light in (
+            (["record", "run", "--format", "nwb", "--out", "x.nc"], "use .nwb", True),
+            (["record", "run", "--out", "x.nwb", "--format", "netcdf"], "use .nc", True),
+            (["record", "run", "--out", "x.json"], "expected a .nc file name", True),
+            (["record", "run", "--from", "rec.nc"], "not both", True),
+            (["record", "--from", "rec.nc", "--format", "netcdf"], "--from converts", True),
+            (["record", "--from", "rec.nc", "--out", "rec.nc"], "--from converts", True),
+            (["record", "--from", "fifo.yaml"], "not a regular file", True),
+            (["record", "--from", "a_dir"], "is a directory", True),
+            (["record", "--from", "rec.nc", "--out", f"{r}/x.nwb"], "read-only", True),
+            (["record", "--from", "rec.nc", "--out", "rec_copy.nwb"], "input of this command", True),
+            (["record", "--format", "nwb"], "give the run directory", True),
+            (["analyze", "rec.nc", "--method", "decoding", "--out", "x.txt"], "expected a", True),
+            (["analyze", "rec.nc", "--method", "encoding", "--color", "reward"], "--color colours the pca", True),
+            (["analyze", "rec.nc", "--method", "states", "--states", "1"], "--states", True),
+            (["analyze", "rec.nc", "--method", "states", "--folds", "1"], "--folds", True),
+            (["analyze", "rec.nc", "--method", "decoding", "--out", f"{r}/d.png"], "read-only", True),
+            (["analyze", f"{r}/rec.nc", "--method", "encoding"], "read-only", True),
+            (["analyze", "rec.nc", "--method", "decoding", "--out", "run/metrics.json"], "expected a", True),
+            (["analyze", "rec.nc", "--method", "nope"], "--method", True),
+            (["compare", "run", "run", "--measure", "dsa", "--rank", "0"], "--rank", True),
+            (["compare", "run", "run", "--measure", "dsa", "--delays", "-3"], "--delays", True),
+            (["compare", "run", "run", "--measure", "cka", "--rsa", "correlation"], "cannot be combined", True),
+            (["compare", "run", "run", "--measure", "dsa", "--out", "x.gif"], "expected a", True),
+            (["compare", f"{r}/run", f"{r}/run", "--measure", "rdm"], "read-only", False),
+        )
+    ]
     # long paths
     long = "x" * 300
     cases += [
@@ -425,6 +455,7 @@ def _fuzz_fixtures(root: Path) -> None:
     (root / "loop.yaml").symlink_to("loop.yaml")
     (root / "dangling.yaml").symlink_to("nowhere.yaml")
     (root / "rec_copy.rrd").symlink_to("rec.nc")
+    (root / "rec_copy.nwb").symlink_to("rec.nc")
 
 
 FIFOS = ("fifo.yaml", "fifo.json", "run_fifo_config/config.yaml", "run_fifo_metrics/metrics.jsonl")

@@ -384,7 +384,7 @@ def recording_env(ds: Any, recording: str | Path | None = None) -> Any:
     recording that stored its run directory relative to where it was recorded)."""
     from vnl.analysis import recorded_run
     from vnl.policy import read_config
-    from vnl.train.config import task_variant
+    from vnl.train.config_changes import task_variant
     from vnl.train.worlds import trained_config
 
     run_dir = recorded_run(ds, recording)

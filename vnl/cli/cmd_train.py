@@ -134,10 +134,10 @@ def _new_config(args: argparse.Namespace, flags: dict[str, Any]) -> Any:
 def _print_config(args: argparse.Namespace, flags: dict[str, Any]) -> int:
     """Prints what the run's config.yaml would hold; nothing is built or compiled."""
     from vnl.train import config as train_config
-    from vnl.train import warm_start
+    from vnl.train import config_changes, warm_start
 
     if args.resume:
-        config = train_config.resume_config(train_config.read_config(args.resume), args.set, flags)
+        config = config_changes.resume_config(train_config.read_config(args.resume), args.set, flags)
     else:
         config = train_config.resolved(warm_start.planned(_new_config(args, flags)))
     print(typed_config.to_yaml(config), end="")

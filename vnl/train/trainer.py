@@ -28,7 +28,8 @@ from vnl.errors import VnlError
 from vnl.io import checkpoint, runlock
 from vnl.io import metrics as metrics_io
 from vnl.train import distributed, loop, rundir, warm_start
-from vnl.train.config import TrainConfig, read_config, resume_config
+from vnl.train.config import TrainConfig, read_config
+from vnl.train.config_changes import resume_config
 from vnl.train.session import Finish, Progress, Restored, Session, TrainResult
 from vnl.train.worlds import Worlds
 
