@@ -365,7 +365,7 @@ def test_sigkill_inside_a_resume_s_rewind_loses_nothing(launcher, reference, tmp
     resume went on from the newest one with the metrics between them lost.)"""
     run = tmp_path / "run"
     shutil.copytree(reference, run)
-    middle = checkpoint.steps(reference)[0]  # the oldest kept checkpoint (keep_checkpoints: 3)
+    middle = checkpoint.steps(reference)[1]  # the oldest kept checkpoint but step 0 (keep_checkpoints: 3)
     assert middle < TOTAL - EPOCH
     proc = _start(launcher, ["train", "--resume", run, "--from-step", middle], point)
     _wait_for_point(proc)

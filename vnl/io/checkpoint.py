@@ -137,7 +137,8 @@ def save(
     meta: dict[str, Any] | None = None,
     keep_best: str | None = None,
 ) -> Path:
-    """Writes checkpoint `step` atomically; keeps the newest `keep` (0 = all) and, with
+    """Writes checkpoint `step` atomically; keeps the newest `keep` (0 = all), step 0 (the
+    untrained policy, or a warm start's parent: the control of every analysis) and, with
     `keep_best`, the one whose evaluation scored highest on that metric (`best`). Returns
     its path.
 
@@ -183,7 +184,7 @@ def save(
         found = best(run_dir, keep_best) if keep_best else None
         spared = found[0] if found else None
         for old in steps(run_dir)[:-keep]:
-            if old != spared:
+            if old not in (spared, 0):
                 _remove(step_dir(run_dir, old))
     return final
 

@@ -98,8 +98,8 @@ def _file(ds: Any, config: str | None, command: str | None, experimenter: str | 
     notes["config"] = config
     return NWBFile(
         session_description=(
-            f"vnl record: {ds.sizes['episode']} episodes of a trained policy on {ds.attrs.get('env', '?')} "
-            f"(checkpoint step {step}), every network layer's activity with the body's pose and behaviour"
+            f"vnl record: {ds.sizes['episode']} episodes of a policy on {ds.attrs.get('env', '?')} at checkpoint "
+            f"step {step} (0: untrained), every network layer's activity with the body's pose and behaviour"
         ),
         identifier=str(uuid.uuid4()),
         session_start_time=now,

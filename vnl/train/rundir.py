@@ -74,7 +74,7 @@ def checkpoint_bytes(config: TrainConfig, env: Env) -> int:
 def check_disk_space(run_dir: Path, config: TrainConfig, env: Env) -> None:
     """Fails before compiling when the disk cannot hold the checkpoints the run will keep."""
     log = config.log
-    keep = log.keep_checkpoints + (log.keep_best is not None) if log.keep_checkpoints else config.ppo.num_evals
+    keep = log.keep_checkpoints + (log.keep_best is not None) + 1 if log.keep_checkpoints else config.ppo.num_evals
     need = (min(keep, config.ppo.num_evals) + 1) * checkpoint_bytes(config, env) + (64 << 20)
     free = shutil.disk_usage(run_dir).free
     if free < need:
