@@ -181,3 +181,374 @@ def test_bad_invocations_end_in_one_error_line_and_change_nothing(tmp_path):
             failures.append(f"vnl {' '.join(argv)} -> exit {p.returncode}\n{p.stderr[-600:]}")
     assert not failures, f"{len(failures)} of {len(cases)}:\n" + "\n".join(failures[:8])
     assert _tree(root) == before
+
+
+# --- generated fuzz of values, shapes, files and outputs (issue 47) -------------------------------
+#
+# Each case runs `vnl` in a subprocess of its own sandbox (a copy of the fixtures, HOME and
+# XDG_CACHE_HOME inside it but outside the compared tree), bounded in time and killed as a
+# process group, two at a time. Each must end with exit code 2, exactly one `vnl: error:` line
+# (warnings allowed), no traceback, nothing in the sandbox or the shared read-only fixtures
+# created or changed (kind, size, mode, mtime, content) and, for the cases the CLI checks itself
+# (`light`), neither JAX nor MuJoCo imported: an atexit hook of the launcher says which were.
+
+import dataclasses  # noqa: E402
+import json  # noqa: E402
+import shutil  # noqa: E402
+import signal  # noqa: E402
+import stat  # noqa: E402
+import time  # noqa: E402
+
+LAUNCHER = """
+import atexit, json, os, sys
+def _mark():
+    with open(os.environ["VNL_FUZZ_MARK"], "w") as f:
+        json.dump({"jax": "jax" in sys.modules, "mujoco": "mujoco" in sys.modules}, f)
+atexit.register(_mark)
+from vnl.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+LIGHT_SECONDS, HEAVY_SECONDS = 20, 120
+
+
+@dataclasses.dataclass
+class Case:
+    group: str
+    argv: list[str]
+    expect: str  # in the error line: the reason the case is refused (lower case)
+    light: bool = True  # refused by the CLI's checks, before JAX and MuJoCo are imported
+    env: dict[str, str] = dataclasses.field(default_factory=dict)
+    files: dict[str, str] = dataclasses.field(default_factory=dict)  # written into the sandbox first
+
+
+NUMBER_KEYS = [
+    "ppo.learning_rate",
+    "ppo.entropy_cost",
+    "ppo.discounting",
+    "ppo.clipping_epsilon",
+    "ppo.max_grad_norm",
+    "ppo.num_envs",
+    "ppo.num_timesteps",
+    "seed",
+    "log.video_seconds",
+    "network.init_noise_std",
+    "env_config.reset_noise_scale",
+    "env_config.physics_timestep",
+]
+BAD_NUMBERS = [".nan", ".NaN", ".inf", "-.inf", "1e999", "-1e999", "99999999999999999999", "-" + "9" * 25, "[1, .nan]"]
+BOMB_LISTS = "a: &a [x, x, x, x, x, x, x, x, x]\n" + "".join(
+    f"{b}: &{b} [{', '.join([f'*{a}'] * 9)}]\n" for a, b in zip("abcdefgh", "bcdefghi", strict=True)
+)
+BOMB_MAPS = "a: &a {x: 1, y: 2, z: 3, w: 4, v: 5, u: 6, t: 7, s: 8, r: 9}\n" + "".join(
+    f"{b}: &{b} {{{', '.join(f'k{i}: *{a}' for i in range(9))}}}\n" for a, b in zip("abcdefgh", "bcdefghi", strict=True)
+)
+BOMB_WIDE = "a: &a {x: 1}\n" + "".join(
+    f"{b}: &{b} [{', '.join([f'*{a}'] * 12)}]\n" for a, b in zip("abcdefg", "bcdefgh", strict=True)
+)
+
+
+def _deep(depth: int, kind: str) -> str:
+    if kind == "list":
+        return "[" * depth + "]" * depth
+    return "{k: " * depth + "1" + "}" * depth
+
+
+def generated_cases(ro: Path) -> list[Case]:
+    """The fuzz cases; paths are relative to the sandbox's tree, `ro` holds the read-only ones."""
+    cases: list[Case] = []
+    train = ["train", "ant_run", "--preset", "tiny"]
+    # non-finite and huge numbers through --set and --config
+    for key in NUMBER_KEYS:
+        for value in BAD_NUMBERS:
+            cases.append(Case("numbers --set", [*train, "--set", f"{key}={value}"], key.split(".")[-1]))
+    for i, key in enumerate(NUMBER_KEYS):
+        *sections, leaf = key.split(".")
+        for value in (".nan", "-.inf", "1e400", "123456789012345678901234567890"):
+            text = (
+                "".join(f"{'  ' * d}{s}:\n" for d, s in enumerate(sections))
+                + f"{'  ' * len(sections)}{leaf}: {value}\n"
+            )
+            cases.append(Case("numbers --config", [*train, "--config", f"n{i}.yaml"], leaf, files={f"n{i}.yaml": text}))
+    # seeds beyond 32 bits
+    for command in (["train", "ant_run"], ["eval", "run"], ["render", "run"], ["record", "run"], ["view", "run"]):
+        for seed in (str(2**32), str(2**63), str(2**64), "1" + "0" * 30):
+            cases.append(Case("seeds", [*command, "--seed", seed], "--seed"))
+    cases += [Case("seeds", ["compare", "run", "run", "--seed", str(2**64)], "--seed")]
+    # section shapes and names (found by the library: JAX is imported)
+    for text, expect in [
+        ("ppo: 3", "ppo"), ("ppo: [1, 2]", "ppo"), ("ppo: text", "ppo"), ("network: 3", "network"),
+        ("log: []", "log"), ("curriculum: 3", "curriculum"), ("curriculum: [3]", "curriculum"),
+        ("curriculum: [{steps: x}]", "steps"), ("init: 5", "init"), ("env_config: [1]", "env_config"),
+        ("vision: true", "vision"), ("randomize: 1.5", "randomize"), ("env: [ant_run]", "env"),
+        ("preset: [cpu]", "preset"), ("preset: {a: 1}", "preset"), ("log: {keep_best: [x]}", "keep_best"),
+        ("env_config: {walker: [ant]}", "walker"), ("vision: {camera: [x]}", "camera"), ("init: {run: [x]}", "run"),
+        ("seed: [1]", "seed"), ("ppo: {num_envs: [16]}", "num_envs"),
+    ]:  # fmt: skip
+        cases.append(Case("shapes", [*train, "--config", "s.yaml"], expect, light=False, files={"s.yaml": text + "\n"}))
+    for assignment in ["ppo=3", "network=[1]", "curriculum=3", "env_config=x", "preset=[cpu]", "log.keep_best=[x]"]:
+        expect = assignment.split("=")[0].split(".")[-1]
+        cases.append(Case("shapes --set", [*train, "--set", assignment], expect, light=False))
+    # keys that are not strings
+    for text in ["1: 2", "null: 1", "true: 1", "ppo: {1: 2}", "1.5: x", "ppo: {~: 1}", "env_config: {2: 3}"]:
+        cases.append(Case("keys", [*train, "--config", "k.yaml"], "not a string", files={"k.yaml": text + "\n"}))
+    cases.append(Case("keys", [*train, "--config", "k.yaml"], "not valid yaml", files={"k.yaml": "? [a, b]\n: 1\n"}))
+    cases.append(Case("keys --set", [*train, "--set", "env_config={1: 2}"], "not a string"))
+    # depth
+    for depth in (65, 100, 1000, 20000):
+        for kind in ("list", "map"):
+            text = f"ppo: {_deep(depth, kind)}\n"
+            cases.append(Case("depth", [*train, "--config", "d.yaml"], "nested more than", files={"d.yaml": text}))
+    cases += [
+        Case("depth --set", [*train, "--set", f"ppo.x={_deep(d, 'list')}"], "nested more than") for d in (70, 5000)
+    ]
+    cases.append(Case("depth --set", [*train, "--set", "a." * 80 + "b=1"], "nested more than"))
+    # alias bombs
+    for text in (BOMB_LISTS, BOMB_MAPS, BOMB_WIDE):
+        cases.append(Case("aliases", [*train, "--config", "b.yaml"], "expands to more than", files={"b.yaml": text}))
+        bomb = "ppo.x=" + text.replace("\n", ", ").join("{}")
+        cases.append(Case("aliases --set", [*train, "--set", bomb], "expands to more than"))
+    # file types of --config
+    for path, expect in [
+        ("a_dir", "is a directory"), ("fifo.yaml", "not a regular file"), ("/dev/null", "not a regular file"),
+        ("binary.yaml", "not text"), ("big.yaml", "larger than"), ("loop.yaml", "symbolic link to nothing"),
+        ("nul.yaml", "not valid yaml"), ("dangling.yaml", "symbolic link to nothing"),
+    ]:  # fmt: skip
+        cases.append(Case("file types", [*train, "--config", path], expect))
+    # input types of recordings and run directories
+    cases += [
+        Case("inputs", ["analyze", "fifo.yaml"], "not a regular file"),
+        Case("inputs", ["analyze", "/dev/zero"], "not a regular file"),
+        Case("inputs", ["analyze", "a_dir"], "is a directory"),
+        Case("inputs", ["view", "fifo.yaml"], "not a regular file"),
+        Case("inputs", ["view", "/dev/zero"], "not a regular file"),
+        Case("inputs", ["compare", "run", "run", "--recording", "fifo.yaml"], "not a regular file"),
+        Case("inputs", ["compare", "run", "run", "--recording", "a_dir"], "is a directory"),
+        Case("inputs", ["eval", "run_fifo_config"], "not a vnl run directory"),
+        Case("inputs", ["eval", "run_big_config"], "larger than"),
+        Case("inputs", ["eval", "run_nan_config"], "entropy_cost"),
+        Case("inputs", ["plot", "run_fifo_metrics"], "no metrics.jsonl"),
+        Case("inputs", ["train", "--resume", "run_big_config"], "larger than"),
+        Case("inputs", ["plot", "run_list_config"], "mapping"),
+        Case("inputs", ["train", "ant_run", "--init-from", "run_nan_config"], "entropy_cost"),
+    ]
+    # outputs on a read-only mount (also for root)
+    r = str(ro)
+    cases += [
+        Case("read-only", argv, "read-only")
+        for argv in (
+            ["eval", f"{r}/run"],
+            ["render", f"{r}/run"],
+            ["record", f"{r}/run"],
+            ["record", "run", "--viewer", "--out", f"{r}/ok.nc"],
+            ["view", f"{r}/run"],
+            ["view", f"{r}/rec.nc"],
+            ["plot", f"{r}/run"],
+            ["analyze", f"{r}/rec.nc"],
+            ["analyze", f"{r}/rec.nc", "--layer", "policy_hidden_0"],
+            ["compare", f"{r}/run", f"{r}/run"],
+            ["train", "--resume", f"{r}/run"],
+            ["train", "ant_run", "--out", f"{r}/new_run"],
+            ["eval", "run", "--out", f"{r}/e.json"],
+            ["plot", "run", "--out", f"{r}/p.png"],
+            ["render", "run", "--out", f"{r}/v.mp4"],
+        )
+    ]
+    # overwrites
+    cases += [
+        Case("overwrites", argv, expect)
+        for argv, expect in (
+            ([*train, "--out", "user_dir"], "already holds a run (config.yaml)"),  # the user's own config.yaml
+            ([*train, "--out", "run"], "already holds a run"),
+            (["record", "run", "--out", "x.rrd", "--viewer"], ".nc"),
+            (["view", "rec.nc", "--out", "rec.nc"], ".rrd"),
+            (["view", "rec.nc", "--out", "rec_copy.rrd"], "input of this command"),  # a symlink to rec.nc
+            (["analyze", "rec.nc", "--out", "rec.nc"], ".png"),
+            (["plot", "run", "--out", "run/metrics.jsonl"], ".png"),
+            (["plot", "run", "--out", "run/learning_curve.png"], "keeps in its run directory"),
+            (["eval", "run", "--out", "run/config.yaml"], ".json"),
+            (["eval", "run", "--out", "run/checkpoints/x.json"], "keeps in its run directory"),
+            (["compare", "run", "run", "--out", "run/learning_curve.png"], "keeps in its run directory"),
+            (["eval", "run", "--out", "fifo.json"], "not a regular file"),
+            (["render", "run", "--out", "a_dir"], "is a directory"),
+        )
+    ]
+    # the recording commands' formats and methods (NWB, encoding/decoding/states, rdm/dsa)
+    cases += [
+        Case("neuro", argv, expect, light=light)
+        for argv, expect, light in (
+            (["record", "run", "--format", "nwb", "--out", "x.nc"], "use .nwb", True),
+            (["record", "run", "--out", "x.nwb", "--format", "netcdf"], "use .nc", True),
+            (["record", "run", "--out", "x.json"], "expected a .nc file name", True),
+            (["record", "run", "--from", "rec.nc"], "not both", True),
+            (["record", "--from", "rec.nc", "--format", "netcdf"], "--from converts", True),
+            (["record", "--from", "rec.nc", "--out", "rec.nc"], "--from converts", True),
+            (["record", "--from", "fifo.yaml"], "not a regular file", True),
+            (["record", "--from", "a_dir"], "is a directory", True),
+            (["record", "--from", "rec.nc", "--out", f"{r}/x.nwb"], "read-only", True),
+            (["record", "--from", "rec.nc", "--out", "rec_copy.nwb"], "input of this command", True),
+            (["record", "--format", "nwb"], "give the run directory", True),
+            (["analyze", "rec.nc", "--method", "decoding", "--out", "x.txt"], "expected a", True),
+            (["analyze", "rec.nc", "--method", "encoding", "--color", "reward"], "--color colours the pca", True),
+            (["analyze", "rec.nc", "--method", "states", "--states", "1"], "--states", True),
+            (["analyze", "rec.nc", "--method", "states", "--folds", "1"], "--folds", True),
+            (["analyze", "rec.nc", "--method", "decoding", "--out", f"{r}/d.png"], "read-only", True),
+            (["analyze", f"{r}/rec.nc", "--method", "encoding"], "read-only", True),
+            (["analyze", "rec.nc", "--method", "decoding", "--out", "run/metrics.json"], "expected a", True),
+            (["analyze", "rec.nc", "--method", "nope"], "--method", True),
+            (["compare", "run", "run", "--measure", "dsa", "--rank", "0"], "--rank", True),
+            (["compare", "run", "run", "--measure", "dsa", "--delays", "-3"], "--delays", True),
+            (["compare", "run", "run", "--measure", "cka", "--rsa", "correlation"], "cannot be combined", True),
+            (["compare", "run", "run", "--measure", "dsa", "--out", "x.gif"], "expected a", True),
+            (["compare", f"{r}/run", f"{r}/run", "--measure", "rdm"], "read-only", False),
+        )
+    ]
+    # long paths
+    long = "x" * 300
+    cases += [
+        Case("long paths", ["eval", "run", "--out", "d/" * 3000 + "e.json"], "name too long"),
+        Case("long paths", ["eval", "run", "--out", f"{long}.json"], "name too long"),
+        Case("long paths", [*train, "--config", f"{long}.yaml"], "name too long"),
+        Case("long paths", [*train, "--out", "r/" * 3000], "name too long"),
+        Case("long paths", ["eval", "r" * 5000], "name too long"),
+        Case("long paths", ["analyze", f"{long}.nc"], "name too long"),
+    ]
+    # MUJOCO_GL
+    for gl in ("bogus", "glx", "EGL", "egl ", "cgl"):
+        for argv in (["eval", "run"], ["render", "run"], ["record", "run"]):
+            cases.append(Case("MUJOCO_GL", argv, "mujoco_gl", env={"MUJOCO_GL": gl}))
+    return cases
+
+
+def _snapshot(root: Path) -> dict[str, tuple]:
+    """Every entry under `root`: (kind, size, mode, mtime, sha256 of a regular file's bytes)."""
+    out = {}
+    for p in sorted(root.rglob("*")):
+        st = p.lstat()
+        digest = hashlib.sha256(p.read_bytes()).hexdigest() if stat.S_ISREG(st.st_mode) else ""
+        out[str(p.relative_to(root))] = (stat.S_IFMT(st.st_mode), st.st_size, st.st_mode, st.st_mtime_ns, digest)
+    return out
+
+
+def _fuzz_fixtures(root: Path) -> None:
+    """The sandbox template: the old fixtures plus a run with a checkpoint, a user's folder with
+    its own config.yaml, and runs whose config.yaml or metrics.jsonl are odd."""
+    from vnl.io import checkpoint
+
+    _fixtures(root)
+    good = (root / "good.yaml").read_text()
+    params = ({"mean": np.zeros(2, np.float32)}, {"w": np.ones(3, np.float32)}, {"w": np.ones(1, np.float32)})
+    checkpoint.save(root / "run", 0, params, 0, {".env.x": np.zeros(2)}, {"training_steps_per_epoch": 1})
+    for name, text in {
+        "user_dir/config.yaml": "# my notes\nppo: {num_envs: 16}\n",
+        "run_big_config/config.yaml": "a: " + "x" * (2 << 20) + "\n",
+        "run_nan_config/config.yaml": good.replace("entropy_cost: 0.01", "entropy_cost: .nan"),
+        "run_list_config/config.yaml": "- 1\n",
+        "run_list_config/metrics.jsonl": '{"step": 0}\n',
+        "run_fifo_metrics/config.yaml": good,
+        "run_fifo_config/metrics.jsonl": '{"step": 0}\n',
+        "big.yaml": "a: " + "x" * (2 << 20) + "\n",
+        "nul.yaml": "ppo:\0 1\n",
+    }.items():
+        (root / name).parent.mkdir(parents=True, exist_ok=True)
+        (root / name).write_text(text)
+    assert "entropy_cost: .nan" in (root / "run_nan_config/config.yaml").read_text()
+    (root / "loop.yaml").symlink_to("loop.yaml")
+    (root / "dangling.yaml").symlink_to("nowhere.yaml")
+    (root / "rec_copy.rrd").symlink_to("rec.nc")
+    (root / "rec_copy.nwb").symlink_to("rec.nc")
+
+
+FIFOS = ("fifo.yaml", "fifo.json", "run_fifo_config/config.yaml", "run_fifo_metrics/metrics.jsonl")
+
+
+def _sandbox(template: Path, where: Path, case: Case) -> Path:
+    tree = where / "tree"
+    shutil.copytree(template, tree, symlinks=True)
+    for name in FIFOS:
+        os.mkfifo(tree / name)
+    for name, text in case.files.items():
+        (tree / name).write_text(text)
+    for d in ("home", "cache"):
+        (where / d).mkdir()
+    return tree
+
+
+def _run_case(template: Path, where: Path, ro: Path, case: Case) -> str | None:
+    """Runs one case; None when it passed, else what went wrong."""
+    tree = _sandbox(template, where, case)
+    before, ro_before = _snapshot(tree), _snapshot(ro)
+    mark = where / "mark.json"
+    env = {
+        **{k: v for k, v in os.environ.items() if k not in ("VNL_COMPILE_CACHE", "MUJOCO_GL")},
+        "HOME": str(where / "home"),
+        "XDG_CACHE_HOME": str(where / "cache"),
+        "PYTHONPATH": str(ROOT),
+        "VNL_FUZZ_MARK": str(mark),
+        **case.env,
+    }
+    argv = case.argv
+    proc = subprocess.Popen(
+        [sys.executable, "-c", LAUNCHER, *argv],
+        cwd=tree,
+        env=env,
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
+    limit = LIGHT_SECONDS if case.light else HEAVY_SECONDS
+    try:
+        out, err = proc.communicate(timeout=limit)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.communicate()
+        return f"no answer in {limit} s (a hang)"
+    lines = [line for line in err.splitlines() if line.strip()]
+    errors = [line for line in lines if line.startswith("vnl: error:")]
+    noise = [line for line in lines if not line.startswith(("vnl: error:", "vnl: warning:"))]
+    problems = []
+    if proc.returncode != 2:
+        problems.append(f"exit {proc.returncode}")
+    if len(errors) != 1 or noise or "Traceback" in out + err:
+        problems.append(f"stderr {err[-700:]!r}")
+    elif case.expect not in errors[0].lower():
+        problems.append(f"refused for another reason than {case.expect!r}: {errors[0][:300]!r}")
+    imported = json.loads(mark.read_text()) if mark.is_file() else {"jax": "?", "mujoco": "?"}
+    if case.light and (imported["jax"] or imported["mujoco"]):
+        problems.append(f"imported {imported} before refusing")
+    if _snapshot(tree) != before or _snapshot(ro) != ro_before:
+        after = _snapshot(tree)
+        changed = sorted(k for k in set(before) | set(after) if before.get(k) != after.get(k))
+        problems.append(f"changed {changed[:5]}")
+    return "; ".join(problems) or None
+
+
+def test_generated_fuzz_of_values_shapes_files_and_outputs(tmp_path):
+    """At least 200 generated cases (issue 47): non-finite and huge numbers, seeds, section
+    shapes, names, non-string keys, depth, alias bombs, file and input types, read-only outputs,
+    overwrites, long paths, MUJOCO_GL."""
+    from fsutil import read_only
+
+    template = tmp_path / "template"
+    template.mkdir()
+    _fuzz_fixtures(template)
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    shutil.copytree(template / "run", ro / "run")
+    shutil.copy(template / "rec.nc", ro / "rec.nc")
+    cases = generated_cases(ro)
+    assert len(cases) >= 200, len(cases)
+    start = time.monotonic()
+    with read_only(ro):
+        with ThreadPoolExecutor(max_workers=2) as pool:
+            results = list(
+                pool.map(lambda ic: _run_case(template, tmp_path / f"case{ic[0]}", ro, ic[1]), enumerate(cases))
+            )
+    failures = [  # the files a case writes (a config) are shown by their first characters
+        f"[{c.group}] vnl {' '.join(c.argv)[:200]} {c.env or ''} {[t[:40] for t in c.files.values()]}: {r}"
+        for c, r in zip(cases, results, strict=True)
+        if r
+    ]
+    print(f"{len(cases)} cases in {time.monotonic() - start:.0f} s")
+    assert not failures, f"{len(failures)} of {len(cases)}:\n" + "\n".join(failures[:40])

@@ -12,7 +12,7 @@ from vnl.errors import VnlError
 from vnl.io import checkpoint, plot
 from vnl.io import metrics as metrics_io
 from vnl.train import config as train_config
-from vnl.train import trainer, warm_start
+from vnl.train import config_changes, trainer, warm_start
 
 pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("curriculum"), pytest.mark.usefixtures("point_envs")]
 
@@ -280,7 +280,7 @@ def test_a_resumed_curriculum_run_given_more_steps_extends_its_last_stage(staged
     with pytest.raises(VnlError, match="ends before the curriculum's last stage starts"):
         trainer.resume(copy, flags={"ppo": {"num_timesteps": 512}}, say=quiet)
     with pytest.raises(VnlError, match="num_timesteps"):  # one line, not a TypeError
-        train_config.resume_config(train_config.read_config(copy), ["ppo.num_timesteps=abc"], None)
+        config_changes.resume_config(train_config.read_config(copy), ["ppo.num_timesteps=abc"], None)
 
 
 def test_curriculum_config_errors_name_the_problem(staged):

@@ -114,12 +114,20 @@ def test_rotation_keeps_the_best_evaluated_checkpoint(tmp_path):
     for step, reward in rewards.items():
         meta = {"record": {"step": step, "eval/episode_reward": reward}}
         checkpoint.save(tmp_path, step, PARAMS, 2, {"x": np.zeros(2)}, meta, keep_best="eval/episode_reward")
-    assert checkpoint.steps(tmp_path) == [1, 4, 5]  # the newest two, and step 1 (the earliest 9.0)
+    assert checkpoint.steps(tmp_path) == [0, 1, 4, 5]  # step 0, the newest two, and step 1 (the earliest 9.0)
     assert checkpoint.best(tmp_path) == (1, 9.0)
     assert checkpoint.recorded(tmp_path, 5, "eval/episode_reward") == 2.0
     assert checkpoint.best(tmp_path, "eval/no_such_metric") is None
     checkpoint.save(tmp_path, 6, PARAMS, 2, {"x": np.zeros(2)}, {"record": {"eval/episode_reward": 12.0}})
-    assert checkpoint.steps(tmp_path) == [5, 6]
+    assert checkpoint.steps(tmp_path) == [0, 5, 6]
+
+
+def test_rotation_never_removes_step_0_the_untrained_policy(tmp_path):
+    """Step 0 is the control of every analysis (`vnl record RUN --step 0`): rotation keeps it."""
+    for step in range(0, 60, 10):
+        checkpoint.save(tmp_path, step, PARAMS, 2, {"x": np.full(2, step)})
+    assert checkpoint.steps(tmp_path) == [0, 40, 50]
+    assert checkpoint.load_train_state(tmp_path, 0)[1]["x"][0] == 0
 
 
 def test_the_best_checkpoint_of_a_curriculum_run_is_from_its_latest_stage(tmp_path):
@@ -131,7 +139,7 @@ def test_the_best_checkpoint_of_a_curriculum_run_is_from_its_latest_stage(tmp_pa
         if step == 2:
             assert checkpoint.best(tmp_path) == (2, 5.0)
     assert checkpoint.best(tmp_path) == (3, 8.0)
-    assert checkpoint.steps(tmp_path) == [3, 4, 5]
+    assert checkpoint.steps(tmp_path) == [0, 3, 4, 5]
 
 
 def test_leftovers_of_a_killed_write_are_removed_and_never_loaded(tmp_path):

@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from vnl import durable
 from vnl.errors import VnlError
 
 
@@ -31,6 +32,26 @@ def open_recording(path: str | Path) -> Any:
         what = f"no {', '.join(missing)}" if missing else "no network layers (policy_*, value_*)"
         raise VnlError(f"{path} is not a vnl recording ({what}); write one with `vnl record RUN_DIR`")
     return ds
+
+
+def recorded_run(ds: Any, recording: str | Path | None = None) -> Path:
+    """The run directory a recording was made of: its `run_dir` attribute (absolute since vnl
+    records it so); for an older recording with a relative one that does not resolve from here,
+    that path relative to the recording's folder, or the recording's folder itself (`vnl record`
+    writes into the run directory by default)."""
+    attr = ds.attrs.get("run_dir")
+    if not attr:
+        raise VnlError(
+            "the recording does not say which run it recorded (no run_dir attribute); is it a vnl recording?"
+        )
+    path = Path(str(attr))
+    if path.is_dir() or path.is_absolute() or recording is None:
+        return path
+    here = Path(recording).parent
+    for candidate in (here / path, here):
+        if (candidate / "config.yaml").is_file():
+            return candidate
+    return path
 
 
 def layer_names(ds: Any) -> list[str]:
@@ -107,5 +128,5 @@ def pca_figure(ds: Any, layer: str, color: str, out: str | Path) -> tuple[Path, 
     fig.suptitle(f"{ds.attrs.get('env', '')} @ step {ds.attrs.get('checkpoint_step', '?')}")
     fig.tight_layout()
     out = Path(out)
-    fig.savefig(out, dpi=100)
+    durable.write_atomic(out, writer=lambda tmp: fig.savefig(tmp, dpi=100))
     return out, ratio

@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from vnl import durable
 from vnl.errors import VnlError
 from vnl.io import checkpoint
 
@@ -264,7 +265,7 @@ def heatmap(result: Comparison, out: str | Path) -> Path:
     fig.suptitle(f"{label} on {result.samples:,} steps of {result.source}", fontsize=10)
     fig.tight_layout()
     out = Path(out)
-    fig.savefig(out, dpi=100)
+    durable.write_atomic(out, writer=lambda tmp: fig.savefig(tmp, dpi=100))
     return out
 
 
@@ -284,19 +285,23 @@ class Source:
 def parse_source(text: str) -> Source:
     """`RUN_DIR`, `RUN_DIR@STEP` (a checkpoint; `@best`: `vnl.policy.best_checkpoint`) or a
     recording file written by `vnl record`."""
-    from vnl.analysis import open_recording
+    from vnl.analysis import open_recording, recorded_run
     from vnl.policy import best_checkpoint
 
     path = Path(text)
     if path.is_file():
         ds = open_recording(path)
-        if "run_dir" not in ds.attrs:
-            raise VnlError(f"{path} does not say which run it recorded (no run_dir attribute); is it a vnl recording?")
-        return Source(Path(ds.attrs["run_dir"]), int(ds.attrs["checkpoint_step"]), path)
+        try:
+            step = int(ds.attrs["checkpoint_step"])
+        except (KeyError, TypeError, ValueError):
+            raise VnlError(
+                f"{path} does not say which checkpoint it recorded (checkpoint_step); is it a vnl recording?"
+            ) from None
+        return Source(recorded_run(ds, path), step, path)
     step: int | None = None
     if "@" in path.name and not path.is_dir():
         name, _, number = path.name.rpartition("@")
-        if not (number.isdigit() or number == "best"):
+        if not name or not (number.isdigit() or number == "best"):
             raise VnlError(f"{text}: expected RUN_DIR@STEP with a checkpoint step or `best`, e.g. runs/a@4096")
         path = path.with_name(name)
         if path.is_dir():

@@ -8,6 +8,9 @@ is an FFI call (`vnl.physics.ffi`), not a Python callback, which JAX would not c
 
 from __future__ import annotations
 
+import errno
+import os
+import stat
 from pathlib import Path
 
 MIN_COMPILE_SECONDS = 0.5
@@ -15,14 +18,18 @@ MIN_COMPILE_SECONDS = 0.5
 
 
 def enable(directory: str | Path) -> Path:
-    """Caches compiled programs in `directory` (created if missing) for this process; returns it.
+    """Caches compiled programs in `directory` (created if missing, readable by this user only)
+    for this process; returns it.
 
-    Raises `OSError` when the directory cannot be created or written.
+    Raises `OSError` when the directory cannot be created or written, and `PermissionError` when
+    another user owns it or others may write to it: a program someone else put there would run as
+    yours (a cache entry is compiled machine code).
     """
     import jax
 
     path = Path(directory).expanduser().resolve()
-    path.mkdir(parents=True, exist_ok=True)
+    path.mkdir(mode=0o700, parents=True, exist_ok=True)
+    check_private(path)
     probe = path / ".write-test"
     probe.write_bytes(b"")
     probe.unlink()
@@ -30,6 +37,20 @@ def enable(directory: str | Path) -> Path:
     jax.config.update("jax_persistent_cache_min_compile_time_secs", MIN_COMPILE_SECONDS)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
     return path
+
+
+def check_private(path: Path) -> None:
+    """`PermissionError` unless `path` is a directory owned by this user that no one else may
+    write to (group- or world-writable; a sticky /tmp included)."""
+    st = os.stat(path)
+    if not stat.S_ISDIR(st.st_mode):
+        raise NotADirectoryError(errno.ENOTDIR, "not a directory", str(path))
+    if st.st_uid != os.geteuid():
+        raise PermissionError(errno.EPERM, f"owned by another user (uid {st.st_uid}), so not trusted", str(path))
+    if st.st_mode & (stat.S_IWGRP | stat.S_IWOTH):
+        raise PermissionError(
+            errno.EPERM, f"writable by other users (mode {stat.S_IMODE(st.st_mode):o}), so not trusted", str(path)
+        )
 
 
 def disable() -> None:

@@ -6,10 +6,27 @@ from __future__ import annotations
 import ctypes.util
 import os
 import sys
-from collections.abc import MutableMapping
+from collections.abc import Mapping, MutableMapping
+
+from vnl.errors import VnlError
 
 BACKENDS = ("egl", "osmesa")
 """Headless backends, in the order they are tried: EGL (GPU or Mesa), then OSMesa (software)."""
+
+VALID = ("egl", "osmesa", "glfw", "enable", "enabled", "on", "true", "1", "disable", "disabled", "off", "false", "0")
+"""The values of `MUJOCO_GL` both MuJoCo and dm_control accept (dm_control compares them as
+written; MuJoCo also takes glx, cgl and wgl, which dm_control refuses at import)."""
+
+
+def check(environ: Mapping[str, str] = os.environ) -> None:
+    """Raises `VnlError` when `MUJOCO_GL` is set to a value MuJoCo or dm_control would refuse when
+    imported (with a `RuntimeError`, from inside the import); call it before importing them."""
+    value = environ.get("MUJOCO_GL")
+    if value and value not in VALID:
+        raise VnlError(
+            f"MUJOCO_GL={value!r} is not an OpenGL backend MuJoCo and dm_control both accept; set it to egl or "
+            "osmesa (no display), glfw (a display) or disable, or unset it to let vnl choose"
+        )
 
 
 def available() -> str | None:

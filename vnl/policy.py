@@ -18,7 +18,8 @@ import jax
 from vnl.errors import VnlError
 from vnl.io import checkpoint
 from vnl.tasks.contract import Env
-from vnl.train.config import TrainConfig, read_config, task_variant
+from vnl.train.config import TrainConfig, read_config
+from vnl.train.config_changes import task_variant
 from vnl.train.networks import make_network
 from vnl.train.recurrent import make_recurrent_networks
 from vnl.train.worlds import trained_config

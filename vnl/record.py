@@ -23,6 +23,7 @@ tanh(location); with `normal` the location alone, the deterministic action, clip
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +31,7 @@ import jax
 import jax.numpy as jp
 import numpy as np
 
+from vnl import durable
 from vnl.errors import VnlError
 from vnl.policy import LoadedRun
 from vnl.train.networks import ACTIVATIONS, make_network
@@ -273,7 +275,7 @@ def _dataset(run: LoadedRun, raw: dict[str, Any], episodes: int, steps: int, see
         attrs={
             "title": f"vnl neural recording of {run.config.env}",
             "env": run.config.env,
-            "run_dir": str(run.run_dir),
+            "run_dir": os.path.abspath(run.run_dir),  # found again from any working directory
             "env_set": json.dumps(list(run.env_set)),  # the task variant of `--set env_config...`
             "checkpoint_step": int(run.step),
             "control_dt": float(env.dt),
@@ -325,9 +327,5 @@ def _dof_labels(m: Any, qpos: bool) -> list[str]:
 
 
 def write(ds: Any, path: str | Path) -> Path:
-    """Writes the dataset as NetCDF-4 (HDF5) via h5netcdf, atomically."""
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    ds.to_netcdf(tmp, engine="h5netcdf")
-    tmp.replace(path)
-    return path
+    """Writes the dataset as NetCDF-4 (HDF5) via h5netcdf, atomically and durably."""
+    return durable.write_atomic(Path(path), writer=lambda tmp: ds.to_netcdf(tmp, engine="h5netcdf"))

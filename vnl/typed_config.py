@@ -9,15 +9,24 @@ config.
 from __future__ import annotations
 
 import dataclasses
+import math
 import types
 import typing
 from typing import Any, TypeVar
 
 import yaml
 
+from vnl import durable, safe_yaml
 from vnl.errors import VnlError
 
 C = TypeVar("C")
+
+INT64 = (-(2**63), 2**63 - 1)
+"""The integers a config holds: what numpy and JAX store them in."""
+
+MAX_SEED = 2**32 - 1
+"""The largest seed: JAX (without 64-bit mode) keeps the low 32 bits of a seed, so seeds that
+differ only above them would give the same run (and 2**63 and above do not convert at all)."""
 
 
 class FrozenDict(dict):
@@ -105,12 +114,17 @@ def _coerce(value: Any, tp: Any, key: str) -> Any:
     if tp is int:
         if isinstance(value, bool) or not isinstance(value, int):
             if isinstance(value, float) and value.is_integer():
-                return int(value)
-            raise VnlError(f"{key}: expected an integer, got {value!r}")
+                value = int(value)
+            else:
+                raise VnlError(f"{key}: expected an integer, got {value!r}")
+        if not INT64[0] <= value <= INT64[1]:
+            raise VnlError(f"{key}: {value} is out of range (a 64-bit integer: at most {INT64[1]:,})")
         return value
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise VnlError(f"{key}: expected a number, got {value!r}")
+        if not math.isfinite(value) or abs(value) > 1.7976931348623157e308:
+            raise VnlError(f"{key}: expected a finite number, got {value!r}")
         return float(value)
     if tp is str:
         if not isinstance(value, str):
@@ -127,6 +141,9 @@ def from_dict(cls: type[C], values: dict[str, Any], prefix: str = "") -> C:
         raise VnlError(f"{prefix.rstrip('.') or 'config'}: expected a mapping, got {values!r}")
     hints = typing.get_type_hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
+    odd = [k for k in values if not isinstance(k, str)]
+    if odd:
+        raise VnlError(f"{prefix or 'config'}: the key {odd[0]!r} is not a string; config keys are names")
     unknown = sorted(set(values) - set(fields))
     if unknown:
         raise VnlError(
@@ -189,58 +206,65 @@ def parse_assignment(text: str) -> dict[str, Any]:
     key = key.strip()
     if not key or any(not part for part in key.split(".")):
         raise VnlError(f"--set: bad key {key!r} in {text!r}")
-    try:
-        value = yaml.safe_load(raw) if raw.strip() else ""
-    except yaml.YAMLError:
-        value = raw
-    # YAML 1.1 reads '3e-4' as a string; accept it as the number the user meant.
-    if isinstance(value, str):
-        try:
-            value = float(value)
-        except ValueError:
-            pass
+    value = parse_value(raw, f"--set {key}")
     out: dict[str, Any] = {}
     node = out
     parts = key.split(".")
     for part in parts[:-1]:
         node = node.setdefault(part, {})
     node[parts[-1]] = value
+    check_values(out, f"--set {key}")
     return out
 
 
-def load_yaml(path: str) -> dict[str, Any]:
-    """Reads a YAML mapping; a missing or malformed file raises `VnlError`."""
+def parse_value(raw: str, source: str) -> Any:
+    """The value of a `--set key=value`, parsed as YAML (`3e-4` a number, `[1, 2]` a list, `null`
+    None); text that is not YAML is taken as the string it is. Limits as `safe_yaml.load`."""
+    if not raw.strip():
+        return ""
+    if len(raw) > safe_yaml.MAX_BYTES:
+        raise VnlError(f"{source}: the value is larger than {safe_yaml.MAX_BYTES >> 20} MiB")
     try:
-        with open(path) as f:
-            data = yaml.safe_load(f)
-    except FileNotFoundError:
-        raise VnlError(f"config file not found: {path}") from None
-    except IsADirectoryError:
-        raise VnlError(f"config file {path} is a directory; give the path of a YAML file") from None
-    except OSError as e:
-        raise VnlError(f"cannot read config file {path}: {e.strerror or e}") from None
-    except UnicodeDecodeError:
-        raise VnlError(f"config file {path} is not text (not a YAML file?)") from None
-    except yaml.YAMLError as e:
-        raise VnlError(f"config file {path} is not valid YAML: {e}".splitlines()[0]) from None
+        safe_yaml.check_shape(raw, source)
+        value = yaml.load(raw, Loader=safe_yaml.Loader)  # noqa: S506 - a SafeLoader
+    except yaml.YAMLError:
+        return raw
+    safe_yaml.check_keys(value, source)
+    return value
+
+
+def load_yaml(path: str, what: str = "config file") -> dict[str, Any]:
+    """Reads a YAML mapping (`safe_yaml`: YAML 1.2 numbers, bounded size, depth and aliases,
+    string keys, finite numbers); a missing, unreadable or malformed file raises `VnlError`."""
+    data = safe_yaml.load(safe_yaml.read_text(path, what), f"{what} {path}")
     if data is None:
         return {}
     if not isinstance(data, dict):
-        raise VnlError(f"config file {path} must hold a mapping of keys, got {type(data).__name__}")
-    return _fix_yaml_floats(data)
+        raise VnlError(f"{what} {path} must hold a mapping of keys, got {type(data).__name__}")
+    check_values(data, f"{what} {path}")
+    return data
 
 
-def _fix_yaml_floats(node: Any) -> Any:
-    if isinstance(node, dict):
-        return {k: _fix_yaml_floats(v) for k, v in node.items()}
-    if isinstance(node, list):
-        return [_fix_yaml_floats(v) for v in node]
-    if isinstance(node, str):
-        try:
-            return float(node) if any(c in node.lower() for c in "e.") else node
-        except ValueError:
-            return node
-    return node
+def check_values(values: Any, where: str, key: str = "", depth: int = 0) -> None:
+    """Raises `VnlError` (naming `where` and the key) unless `values` is what a config can hold:
+    string keys, at most `safe_yaml.MAX_DEPTH` levels, finite floats and 64-bit integers.
+    Cheap and import-free: the CLI runs it on `--config`, every `--set` and a run's config.yaml
+    before anything heavy is imported."""
+    at = f" at {key}" if key else ""
+    if depth > safe_yaml.MAX_DEPTH:
+        raise VnlError(f"{where}: nested more than {safe_yaml.MAX_DEPTH} levels{at}")
+    if isinstance(values, dict):
+        for k, v in values.items():
+            if not isinstance(k, str):
+                raise VnlError(f"{where}: the key {k!r}{at.replace(' at', ' under')} is not a string; keys are names")
+            check_values(v, where, f"{key}.{k}" if key else k, depth + 1)
+    elif isinstance(values, (list, tuple)):
+        for i, v in enumerate(values):
+            check_values(v, where, f"{key}[{i}]", depth + 1)
+    elif isinstance(values, float) and not math.isfinite(values):
+        raise VnlError(f"{where}: {key or 'a value'} must be a finite number, got {values}")
+    elif isinstance(values, int) and not isinstance(values, bool) and not INT64[0] <= values <= INT64[1]:
+        raise VnlError(f"{where}: {key or 'a value'} = {values} is out of range (a 64-bit integer)")
 
 
 def to_yaml(obj: Any) -> str:
@@ -249,20 +273,16 @@ def to_yaml(obj: Any) -> str:
 
 
 def dump_yaml(obj: Any, path: str) -> None:
-    """Writes a config (dataclass or dict) as YAML (`to_yaml`), atomically (temp file + rename)."""
-    import os
-
-    tmp = f"{path}.tmp"
-    with open(tmp, "w") as f:
-        f.write(to_yaml(obj))
-    os.replace(tmp, path)
+    """Writes a config (dataclass or dict) as YAML (`to_yaml`), atomically and durably
+    (`durable.write_atomic`: a unique temp file, fsynced, renamed, the directory fsynced)."""
+    durable.write_atomic(path, to_yaml(obj))
 
 
 def task_variant_assignment(text: str) -> dict[str, Any]:
     """One `--set env_config.KEY=VALUE` of `vnl eval`, `render` or `record`, parsed; anything
     but an env_config key is refused (it would not be the run's policy). Imports nothing heavy."""
     key = text.split("=", 1)[0].strip()
-    if not key.startswith("env_config."):
+    if "=" in text and not key.startswith("env_config."):
         raise VnlError(
             f"--set {key}: a trained run can only be evaluated on a variant of its task, so --set takes "
             "env_config.* keys here (e.g. --set env_config.terminate_root_below=null)"

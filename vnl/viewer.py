@@ -29,6 +29,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from vnl import durable
 from vnl.errors import VnlError
 
 HIDDEN_GROUP = 3  # vnl's collision proxies live in geom group 3 (walkers.mjx_compat)
@@ -348,19 +349,17 @@ def write(ds: Any, env: Any, path: str | Path, episode: int = 0, units: int = 4,
     """Writes episode `episode` of `ds` as a Rerun recording (.rrd), atomically."""
 
     path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    rec = stream(f"{ds.attrs.get('env', 'vnl')}-{path.stem}")
-    rec.save(tmp)
-    try:
-        log_episode(rec, ds, env, episode, units, camera)
-        rec.flush()
-        rec.disconnect()
-    except BaseException:  # an error or Ctrl-C: no partial file is left behind
-        rec.disconnect()
-        tmp.unlink(missing_ok=True)
-        raise
-    tmp.replace(path)
-    return path
+
+    def save(tmp: Path) -> None:
+        rec = stream(f"{ds.attrs.get('env', 'vnl')}-{path.stem}")
+        rec.save(tmp)
+        try:
+            log_episode(rec, ds, env, episode, units, camera)
+            rec.flush()
+        finally:  # an error or Ctrl-C: write_atomic removes the partial file
+            rec.disconnect()
+
+    return durable.write_atomic(path, writer=save)
 
 
 def notebook(ds: Any, env: Any, episode: int = 0, units: int = 4, camera: bool = True, height: int = 640) -> Any:
@@ -378,17 +377,24 @@ def notebook(ds: Any, env: Any, episode: int = 0, units: int = 4, camera: bool =
     return viewer
 
 
-def recording_env(ds: Any) -> Any:
+def recording_env(ds: Any, recording: str | Path | None = None) -> Any:
     """The env of the run a recording was made of (built from its config.yaml: the env its
     checkpoint was trained on, and the task variant it was recorded on, `vnl record --set`; no
-    checkpoint is loaded)."""
+    checkpoint is loaded). `recording`: the file it was read from (finds the run of an older
+    recording that stored its run directory relative to where it was recorded)."""
+    from vnl.analysis import recorded_run
     from vnl.policy import read_config
-    from vnl.train.config import task_variant
+    from vnl.train.config_changes import task_variant
     from vnl.train.worlds import trained_config
 
-    run_dir = ds.attrs.get("run_dir")
-    if not run_dir:
-        raise VnlError("the recording does not say which run it recorded (no run_dir attribute)")
+    run_dir = recorded_run(ds, recording)
     config = trained_config(read_config(run_dir), run_dir, int(ds.attrs.get("checkpoint_step", 0)))
-    env_set = json.loads(ds.attrs.get("env_set", "[]"))
+    try:
+        env_set = json.loads(ds.attrs.get("env_set", "[]"))
+    except (ValueError, RecursionError):
+        env_set = None
+    if not isinstance(env_set, list) or not all(isinstance(a, str) for a in env_set):
+        raise VnlError(
+            f"the recording's env_set attribute is not a list of KEY=VALUE strings: {ds.attrs.get('env_set')!r}"
+        )
     return (task_variant(config, env_set) if env_set else config).make_env()

@@ -41,6 +41,21 @@ class BowlParams:
     bump_scale: float = 0.2  # spatial scale of bumps
     terrain_seed: int = 0
 
+    def validate(self) -> None:
+        if self.half_size <= 0 or self.height < 0 or self.base <= 0 or self.ground_size <= 0:
+            raise VnlError("half_size, base and ground_size must be > 0 and height >= 0")
+        if not 3 <= self.nrow <= 4096:
+            raise VnlError(f"nrow must be in 3..4096, got {self.nrow}")
+        if not 0 <= self.smoothness <= 1:
+            raise VnlError(f"smoothness must be in [0, 1], got {self.smoothness}")
+        if not self.bump_scale > 0 or not 1 <= 2 * self.half_size / self.bump_scale <= 4096:
+            raise VnlError(
+                f"bump_scale must be > 0 and give 1 to 4096 bumps across the bowl (2 * half_size / bump_scale), "
+                f"got {self.bump_scale} for half_size {self.half_size}"
+            )
+        if not 0 <= self.terrain_seed < 2**32:
+            raise VnlError(f"terrain_seed must be in 0..{2**32 - 1}, got {self.terrain_seed}")
+
 
 def terrain(params: BowlParams) -> np.ndarray:
     """Heightfield elevations in [0, 1], shape (nrow, nrow) (dm_control's formula)."""

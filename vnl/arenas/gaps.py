@@ -31,6 +31,7 @@ import numpy as np
 from dm_control import mjcf
 
 from vnl.arenas import base as arena_base
+from vnl.errors import VnlError
 
 THICKNESS = 0.16  # platform half-height (dm_control's _WALL_THICKNESS)
 HIDDEN_Z = -50.0  # where unused window boxes wait
@@ -55,6 +56,18 @@ class GapsParams:
     # MJX rat lost penetrating contacts in 11% of states and blew up under random actions; 48 lost
     # none there and is 1.7x faster (docs/experiments/mjx-broadphase.md).
     max_geom_pairs: int = 0
+
+    def validate(self) -> None:
+        lo, hi = self.platform_length
+        if not (0 < lo <= hi and 0 < self.corridor_length and 0 < self.corridor_width):
+            return  # the task's own checks name these
+        if self.max_platforms > 100_000 or self.pieces > 1000:
+            raise VnlError(
+                f"platform_length {(lo, hi)} in a corridor of {self.corridor_length} m needs {self.max_platforms:,} "
+                "platforms; use longer platforms or a shorter corridor (at most 100,000 platforms)"
+            )
+        if max(self.behind, self.ahead, self.visual_ahead) > 1000:
+            raise VnlError("behind, ahead and visual_ahead must be at most 1000")
 
     @property
     def pieces(self) -> int:

@@ -6,6 +6,12 @@ one line `vnl: error: ...` and exit with code 2: flags and numbers are checked b
 (run directories, recordings, config files, `--out` destinations) by each command's `check` — both
 before JAX and MuJoCo are imported, so a typo costs a fraction of a second — and everything else
 by the library, as a `VnlError`, before anything is compiled.
+
+Everything after parsing runs inside one handler: a `VnlError` prints its line and exits with its
+code (2; 3 for a diverged run), Ctrl-C exits 130, a failure of the machine (a full disk, no memory,
+also when a library reports it inside another exception or a compiled program's host function
+raised it) is one line with exit code 1 (`vnl.errors.describe`); anything else is a bug and keeps
+its traceback.
 """
 
 from __future__ import annotations
@@ -14,6 +20,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
+from vnl import errors, headless
 from vnl.cli import (
     cmd_analyze,
     cmd_compare,
@@ -44,20 +51,48 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        args.check(args)
-    except VnlError as e:
-        print(f"vnl: error: {e}", file=sys.stderr)
-        return 2
-    args.gl = process.configure_process(mujoco_needed=args.mujoco)
-    process.compilation_cache(args)
-    try:
+        _check(args)
+        if args.mujoco:
+            headless.check()  # before MuJoCo and dm_control read it (they raise inside their import)
+        args.gl = process.configure_process(mujoco_needed=args.mujoco)
+        process.compilation_cache(args)
         return args.run(args)
-    except VnlError as e:
-        print(f"vnl: error: {e}", file=sys.stderr)
-        return 2
     except KeyboardInterrupt:
         print("vnl: interrupted", file=sys.stderr)
         return 130
+    except Exception as e:  # noqa: BLE001 - what is not described below is re-raised
+        return _failed(e)
+
+
+def _check(args: argparse.Namespace) -> None:
+    """The command's input checks; a path the OS refuses to look at (a name too long, a loop of
+    symlinks, a folder above it that may not be searched) is a mistake on the command line too."""
+    try:
+        args.check(args)
+    except OSError as e:
+        name = str(e.filename or "")
+        shown = name if len(name) <= 120 else f"{name[:60]}...{name[-40:]} ({len(name):,} characters)"
+        raise VnlError(f"{shown}: {e.strerror or e}; check the path") from None
+
+
+def _failed(e: Exception) -> int:
+    """One `vnl: error:` line and the exit code for `e` (a `VnlError`, or a failure of the machine
+    `errors.describe` recognizes, also behind a compiled program's error); else re-raises the
+    exception itself (a bug: its traceback is the report)."""
+    cause = errors.original(e)
+    if isinstance(cause, KeyboardInterrupt):  # Ctrl-C inside a host function of a compiled program
+        print("vnl: interrupted", file=sys.stderr)
+        return 130
+    if isinstance(cause, VnlError):
+        print(f"vnl: error: {cause}", file=sys.stderr)
+        return cause.exit_code
+    line = errors.describe(cause)
+    if line is not None:
+        print(f"vnl: error: {line}", file=sys.stderr)
+        return 1
+    if cause is not e:
+        raise cause from None
+    raise e
 
 
 if __name__ == "__main__":

@@ -1,53 +1,127 @@
-"""Input checks the parser cannot make (paths, files, run directories), before anything heavy is
-imported: a typo costs a fraction of a second. Each raises `VnlError` with the fix."""
+"""Input checks the parser cannot make (paths, files, run directories, outputs), before anything
+heavy is imported: a typo costs a fraction of a second. Each raises `VnlError` with the fix.
+
+Every command's output is checked here, given with `--out` or not (its default is computed by
+path arithmetic alone), so that a command never does its work and then fails to write: the
+directory exists and is writable (not a read-only file system), an existing file there is a
+regular file we may replace, the name has the command's file type, and it is neither one of the
+command's inputs nor a file `vnl train` manages in a run directory (`vnl.io.layout`).
+"""
 
 from __future__ import annotations
 
 import os
+import stat
 import sys
+from collections.abc import Iterable
 from pathlib import Path
 
 from vnl import typed_config
 from vnl.errors import VnlError
+from vnl.io import layout
+
+FIGURES = (".png", ".pdf", ".svg", ".svgz", ".jpg", ".jpeg", ".eps", ".ps", ".tif", ".tiff", ".webp")
+"""The figure types matplotlib writes (`vnl plot`, `analyze`, `compare`)."""
 
 
 def run_dir(path: str, flag: str = "RUN_DIR", config: bool = True) -> None:
-    """A run directory: it exists, is a directory and (with `config`) holds a readable config.yaml."""
+    """A run directory: it exists, is a directory and (with `config`) holds a readable config.yaml
+    (without `config`, a config.yaml it holds must still be a readable mapping)."""
     p = Path(path)
     if not p.exists():
         raise VnlError(f"run directory not found: {path}")
     if not p.is_dir():
         raise VnlError(f"{flag} {path} is a file, not a run directory")
-    if not config:
-        return
-    if not (p / "config.yaml").is_file():
-        raise VnlError(f"{path} is not a vnl run directory (no config.yaml); give a directory written by `vnl train`")
-    typed_config.load_yaml(str(p / "config.yaml"))  # unreadable or not YAML: one line now, not after imports
+    if not (p / layout.CONFIG).is_file():
+        if config:
+            raise VnlError(
+                f"{path} is not a vnl run directory (no config.yaml); give a directory written by `vnl train`"
+            )
+        if not (p / layout.CONFIG).exists():
+            return
+    # unreadable, not YAML, non-finite numbers, odd keys: one line now, not after imports
+    typed_config.load_yaml(str(p / layout.CONFIG), "config.yaml of the run")
 
 
 def input_file(path: str, what: str) -> None:
+    """An input file: it exists, is a regular file (not a directory, a FIFO that would block, a
+    device) and is readable."""
     p = Path(path)
     if not p.exists():
+        if p.is_symlink():
+            raise VnlError(f"{what} {path} is a symbolic link to nothing (its target is missing, or links loop)")
         raise VnlError(f"{what} not found: {path}")
     if p.is_dir():
         raise VnlError(f"{what} {path} is a directory; give the path of a file")
+    if not stat.S_ISREG(p.stat().st_mode):
+        raise VnlError(f"{what} {path} is not a regular file (a pipe or a device?); give the path of a file")
     if not os.access(p, os.R_OK):
         raise VnlError(f"cannot read {what} {path} (permission denied)")
 
 
-def output_file(path: str | None) -> None:
-    """`--out FILE`: its directory must exist and be writable, and it must not be a directory."""
-    if path is None:
-        return
+def read_only(path: Path) -> bool:
+    """Whether `path` (an existing directory) is on a file system mounted read-only."""
+    try:
+        return bool(os.statvfs(path).f_flag & os.ST_RDONLY)
+    except OSError:
+        return False
+
+
+def writable_dir(path: str | Path, what: str) -> None:
+    """`path` is a directory this process may create files in (or, when it does not exist yet,
+    the nearest existing directory above it is one)."""
     p = Path(path)
-    parent = p.parent
+    existing = next((d for d in [p, *p.absolute().parents] if d.exists()), Path("/"))
+    if not existing.is_dir():
+        raise VnlError(f"{what} {path}: {existing} is a file, not a directory")
+    if read_only(existing):
+        raise VnlError(f"{what} {path}: {existing} is on a read-only file system; choose a writable place")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise VnlError(f"{what} {path}: cannot write to {existing} (permission denied)")
+
+
+def output(path: str | Path, kinds: tuple[str, ...], inputs: Iterable[str | Path] = (), given: bool = True) -> None:
+    """An output file a command will write (`given`: by `--out`; else its default)."""
+    p = Path(path)
+    what = "--out" if given else "the output (the default; choose another with --out)"
     if p.is_dir():
-        raise VnlError(f"--out {path} is a directory; give a file name")
+        raise VnlError(f"{what} {path} is a directory; give a file name")
+    if p.suffix.lower() not in kinds:
+        raise VnlError(f"{what} {path}: expected a {' or '.join(kinds)} file name")
+    parent = p.parent
     if not parent.is_dir():
-        what = "is not a directory" if parent.exists() else "does not exist"
-        raise VnlError(f"--out {path}: {parent} {what}; create the directory first or choose another --out")
-    if not os.access(parent, os.W_OK):
-        raise VnlError(f"--out {path}: cannot write to {parent} (permission denied)")
+        state = "is not a directory" if parent.exists() else "does not exist"
+        raise VnlError(f"{what} {path}: {parent} {state}; create the directory first or choose another --out")
+    if read_only(parent):
+        raise VnlError(f"{what} {path}: {parent} is on a read-only file system; choose another --out")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise VnlError(f"{what} {path}: cannot write to {parent} (permission denied)")
+    if p.exists():
+        if not stat.S_ISREG(p.stat().st_mode):
+            raise VnlError(f"{what} {path} exists and is not a regular file; choose another --out")
+        if not os.access(p, os.W_OK):
+            raise VnlError(f"{what} {path}: cannot replace it (permission denied)")
+    target = os.path.realpath(p)
+    for source in inputs:
+        if os.path.realpath(source) == target:
+            raise VnlError(f"{what} {path} is an input of this command; writing it would destroy it")
+    if layout.is_run_managed(target) or layout.is_run_managed(p):
+        raise VnlError(f"{what} {path} is a file `vnl train` keeps in its run directory; choose another --out")
+
+
+def new_run_dir(path: str | Path, flag: str = "--out") -> None:
+    """The directory of a new run: not a file, holding none of a run's files (a user's
+    config.yaml included), and creatable."""
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise VnlError(f"{flag} {path} is a file; give a directory for the run")
+    found = layout.run_files_in(p)
+    if found:
+        raise VnlError(
+            f"{path} already holds a run ({', '.join(found)}); choose another {flag} directory for a new run"
+            + (" (or --resume it)" if layout.METRICS in found or layout.CHECKPOINTS in found else "")
+        )
+    writable_dir(p, flag)
 
 
 def task_variants(assignments: list[str]) -> None:

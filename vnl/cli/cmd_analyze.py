@@ -9,6 +9,7 @@ import json
 from pathlib import Path
 from typing import Any
 
+from vnl import durable
 from vnl.cli import checks, options
 from vnl.errors import VnlError
 
@@ -48,17 +49,32 @@ def add(sub: Any) -> None:
                    help="the control: behaviour circularly shifted in time within each episode (default), "
                    "or permuted in time")  # fmt: skip
     p.add_argument("--folds", type=options.integer(2), default=5, help="cross-validation folds, by episode (default 5)")
-    p.add_argument("--seed", type=options.NON_NEGATIVE, default=0, help="seed of the control")
+    p.add_argument("--seed", type=options.SEED, default=0, help="seed of the control")
     p.add_argument("--out", help="PNG path (default next to the recording; the JSON beside it)")
 
 
 def check(args: argparse.Namespace) -> None:
     checks.input_file(args.recording, "recording")
-    checks.output_file(args.out)
     if Path(args.recording).suffix == ".nwb":
         raise VnlError(f"{args.recording} is an NWB file; analyze the NetCDF recording (`vnl record` writes .nc)")
     if args.method != "pca" and args.color:
         raise VnlError("--color colours the PCA; use it with --method pca")
+    # the default PCA layer's name is read from the recording: its folder is checked now
+    _check_outputs(args, args.out or default_out(args, args.layer or "policy_hidden_0"))
+
+
+def default_out(args: argparse.Namespace, layer: str | None = None) -> str:
+    """Beside the recording: pca_<layer>.png, encoding.png, decoding_<target>.png or states.png."""
+    name = {"pca": f"pca_{layer}", "encoding": "encoding", "states": "states"}.get(args.method)
+    name = name or f"decoding_{args.target.replace(':', '_')}"
+    return str(Path(args.recording).with_name(f"{name}.png"))
+
+
+def _check_outputs(args: argparse.Namespace, out: str | Path) -> None:
+    """The figure and, for all but pca, the JSON written beside it."""
+    checks.output(out, checks.FIGURES, [args.recording], given=bool(args.out))
+    if args.method != "pca":
+        checks.output(Path(out).with_suffix(".json"), (".json",), [args.recording], given=bool(args.out))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -68,7 +84,8 @@ def run(args: argparse.Namespace) -> int:
     if args.method == "pca":
         layer = args.layer or analysis.default_layer(ds)
         color = args.color or ("x_velocity" if "x_velocity" in ds else "reward")
-        out = args.out or str(Path(args.recording).with_name(f"pca_{layer}.png"))
+        out = args.out or default_out(args, layer)
+        _check_outputs(args, out)
         path, ratio = analysis.pca_figure(ds, layer, color, out)
         shares = ", ".join(f"PC{i + 1} {100 * r:.1f}%" for i, r in enumerate(ratio))
         print(f"PCA of {layer} coloured by {color} ({shares} of variance): {path}")
@@ -84,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
 
         names = [n.strip() for n in args.features.split(",") if n.strip()] if args.features else None
         result = encoding.encode(ds, layers, names, args.folds, args.control, args.seed)
-        out = _out(args, "encoding")
+        out = Path(args.out or default_out(args))
         encoding.figure(result, out)
         for layer in result.r2:
             s = result.summary(layer)
@@ -94,7 +111,7 @@ def run(args: argparse.Namespace) -> int:
         from vnl.neuro import decoding
 
         result = decoding.decode(ds, args.layer, args.target, args.folds, args.control, seed=args.seed)
-        out = _out(args, f"decoding_{args.target.replace(':', '_')}")
+        out = Path(args.out or default_out(args))
         decoding.figure(result, out, dt)
         ctrl = result.to_json()
         print(f"{result.target} from {result.layer}: held-out R² {result.r2:.3f}; control ({result.control}) "
@@ -103,18 +120,14 @@ def run(args: argparse.Namespace) -> int:
         from vnl.neuro import states
 
         result = states.states(ds, args.states, args.segmentation, layers, args.folds, args.control, seed=args.seed)
-        out = _out(args, "states")
+        out = Path(args.out or default_out(args))
         states.figure(result, out, dt)
         for layer in result.means:
             print(f"{layer:>16}: state decoded with balanced accuracy {result.accuracy[layer]:.2f} "
                   f"(control {result.control_accuracy[layer]:.2f}, chance {1 / result.k:.2f})")  # fmt: skip
-    out.with_suffix(".json").write_text(json.dumps(result.to_json(), indent=1))
+    durable.write_atomic(out.with_suffix(".json"), json.dumps(result.to_json(), indent=1))
     print(f"wrote {out} and {out.with_suffix('.json')}")
     return 0
-
-
-def _out(args: argparse.Namespace, name: str) -> Path:
-    return Path(args.out) if args.out else Path(args.recording).with_name(f"{name}.png")
 
 
 def _f(v: float | None) -> str:

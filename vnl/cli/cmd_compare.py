@@ -8,6 +8,7 @@ import json
 from pathlib import Path
 from typing import Any
 
+from vnl import durable
 from vnl.cli import checks, options, process
 from vnl.errors import VnlError
 
@@ -18,13 +19,9 @@ def add(sub: Any) -> None:
     )
     p.add_argument("networks", nargs="+", metavar="NETWORK", help="RUN_DIR, RUN_DIR@STEP|best, or a recording")
     p.add_argument("--recording", help="the episodes every network sees (default: the first recording given, else new)")
-    p.add_argument(
-        "--episodes", type=options.POSITIVE, default=4, help="episodes of a new recording of the first network"
-    )
-    p.add_argument(
-        "--steps", type=options.POSITIVE, help="steps per episode of a new recording (default: episode length)"
-    )
-    p.add_argument("--seed", type=options.NON_NEGATIVE, default=0, help="seed of a new recording")
+    p.add_argument("--episodes", type=options.COUNT, default=4, help="episodes of a new recording of the first network")
+    p.add_argument("--steps", type=options.COUNT, help="steps per episode of a new recording (default: episode length)")
+    p.add_argument("--seed", type=options.SEED, default=0, help="seed of a new recording")
     p.add_argument(
         "--measure",
         choices=("cka", "rsa", "rdm", "dsa"),
@@ -39,10 +36,10 @@ def add(sub: Any) -> None:
         default="cosine",
         help="rdm: rsatoolbox's comparison of two RDMs: cosine (default), corr, spearman, tau-a, rho-a",
     )
-    p.add_argument("--delays", type=options.POSITIVE, default=10, help="dsa: delays of the Hankel embedding (10)")
-    p.add_argument("--rank", type=options.POSITIVE, default=20, help="dsa: rank of the linear operator (20)")
+    p.add_argument("--delays", type=options.COUNT, default=10, help="dsa: delays of the Hankel embedding (10)")
+    p.add_argument("--rank", type=options.COUNT, default=20, help="dsa: rank of the linear operator (20)")
     p.add_argument(
-        "--max-samples", type=options.POSITIVE, default=2000, help="rsa, rdm: at most this many steps (evenly spaced)"
+        "--max-samples", type=options.COUNT, default=2000, help="rsa, rdm: at most this many steps (evenly spaced)"
     )
     p.add_argument("--out", help="heatmap PNG (default <first run>/compare_<measure>.png; a .json beside it)")
     options.cache_flags(p)
@@ -56,12 +53,44 @@ def measure_of(args: argparse.Namespace) -> str:
 
 
 def check(args: argparse.Namespace) -> None:
-    checks.output_file(args.out)
     measure = measure_of(args)
     if measure == "rdm":
         from vnl.neuro import similarity
 
         similarity.check(args.distance, args.rdm_comparison)
+    for text in args.networks:
+        path = Path(text)
+        run = path.with_name(path.name.rpartition("@")[0] or path.name)
+        if not path.exists() and not run.is_dir():
+            raise VnlError(f"{text} is neither a run directory (RUN_DIR or RUN_DIR@STEP) nor a recording file")
+    recordings = [n for n in [*args.networks, args.recording] if n and Path(n).is_file()]
+    if args.recording and not Path(args.recording).is_file():
+        checks.input_file(args.recording, "recording")  # missing, a directory, a pipe: one line
+    for path in recordings:
+        checks.input_file(path, "recording")
+    out = args.out or default_out(args)
+    if out is not None:  # else the first network is a recording: checked once its run is read
+        _check_outputs(Path(out), recordings, given=bool(args.out))
+
+
+def default_out(args: argparse.Namespace) -> str | None:
+    """The default heatmap of a first network given as RUN_DIR or RUN_DIR@STEP; None for a
+    recording (its run is named inside it)."""
+    first = Path(args.networks[0])
+    if first.is_file():
+        return None
+    run_dir = (
+        first
+        if first.is_dir() or "@" not in first.name
+        else first.with_name(first.name.rpartition("@")[0] or first.name)
+    )
+    return str(run_dir / f"compare_{measure_of(args)}.png")
+
+
+def _check_outputs(out: Path, inputs: list[str], given: bool) -> None:
+    """The heatmap and the .json written beside it."""
+    checks.output(out, checks.FIGURES, inputs, given)
+    checks.output(out.with_suffix(".json"), (".json",), inputs, given)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -75,7 +104,8 @@ def run(args: argparse.Namespace) -> int:
         compare.check_distance(distance)
     sources = [compare.parse_source(text) for text in args.networks]
     out = Path(args.out) if args.out else sources[0].run_dir / f"compare_{measure}.png"
-    checks.output_file(str(out))
+    recordings = [n for n in [*args.networks, args.recording] if n and Path(n).is_file()]
+    _check_outputs(out, recordings, given=bool(args.out))
     ds, source = compare.shared_recording(sources, args.recording, args.episodes, args.steps, args.seed, process.say)
     obs, mask = compare.observations(ds)
     if measure in ("rsa", "rdm"):  # RDMs grow with the square of the samples
@@ -87,6 +117,6 @@ def run(args: argparse.Namespace) -> int:
     result = compare.compare(nets, measure, distance, source, args.rdm_comparison, trials, args.delays, args.rank)
     print(compare.table(result))
     compare.heatmap(result, out)
-    out.with_suffix(".json").write_text(json.dumps(result.to_json(), indent=1))
+    durable.write_atomic(out.with_suffix(".json"), json.dumps(result.to_json(), indent=1))
     print(f"wrote {out} and {out.with_suffix('.json')}")
     return 0

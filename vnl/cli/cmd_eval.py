@@ -7,16 +7,17 @@ import json
 from pathlib import Path
 from typing import Any
 
+from vnl import durable
 from vnl.cli import checks, options
 
 
 def add(sub: Any) -> None:
     p = options.command(sub, "eval", "evaluate a trained run", run, check)
     p.add_argument("run_dir")
-    p.add_argument("--episodes", type=options.POSITIVE, default=16)
-    p.add_argument("--steps", type=options.POSITIVE, help="max steps per episode (default: episode length)")
+    p.add_argument("--episodes", type=options.COUNT, default=16)
+    p.add_argument("--steps", type=options.COUNT, help="max steps per episode (default: episode length)")
     options.checkpoint_flag(p)
-    p.add_argument("--seed", type=options.NON_NEGATIVE, default=0)
+    p.add_argument("--seed", type=options.SEED, default=0)
     p.add_argument("--out", help="JSON file (default <run_dir>/eval.json)")
     options.task_variant_flag(p)
     options.cache_flags(p)
@@ -25,7 +26,11 @@ def add(sub: Any) -> None:
 def check(args: argparse.Namespace) -> None:
     checks.run_dir(args.run_dir)
     checks.task_variants(args.set)
-    checks.output_file(args.out)
+    checks.output(args.out or default_out(args), (".json",), given=bool(args.out))
+
+
+def default_out(args: argparse.Namespace) -> str:
+    return str(Path(args.run_dir) / "eval.json")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -45,8 +50,8 @@ def run(args: argparse.Namespace) -> int:
         "env_set": args.set,
         **summarize(r, run.env.dt),
     }
-    out = Path(args.out) if args.out else run.run_dir / "eval.json"
-    out.write_text(json.dumps(summary, indent=2))
+    out = Path(args.out or default_out(args))
+    durable.write_atomic(out, json.dumps(summary, indent=2))
     variant = f" with {' '.join(args.set)}" if args.set else ""
     print(f"{run.config.env}{variant} @ step {run.step:,}: {args.episodes} episodes of up to {steps} steps")
     print(f"{'quantity':<28} {'mean':>12} {'std':>12}")

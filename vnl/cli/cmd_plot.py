@@ -25,13 +25,22 @@ def check(args: argparse.Namespace) -> None:
         checks.run_dir(d, config=False)  # runs are grouped by config.yaml when they have one
         if not (Path(d) / "metrics.jsonl").is_file():
             raise VnlError(f"{d} has no metrics.jsonl yet; plot runs that have been evaluated at least once")
-    checks.output_file(args.out)
+    inputs = [Path(d) / name for d in args.run_dirs for name in ("metrics.jsonl", "config.yaml")]
+    checks.output(args.out or default_out(args), checks.FIGURES, inputs, given=bool(args.out))
+
+
+def default_out(args: argparse.Namespace) -> str:
+    return str(Path(args.run_dirs[0]) / "compare.png")
 
 
 def run(args: argparse.Namespace) -> int:
     from vnl.io import plot
 
-    out = Path(args.out) if args.out else Path(args.run_dirs[0]) / "compare.png"
+    out = Path(args.out or default_out(args))
     path = plot.compare_runs(args.run_dirs, args.metric, out, lineage=args.lineage)
+    if args.lineage:
+        from vnl.train.warm_start import check_lineage
+
+        check_lineage(args.run_dirs)
     print(f"wrote {path}")
     return 0

@@ -20,10 +20,10 @@ def add(sub: Any) -> None:
         sub, "record", "neural recordings: activations, observations, actions, body pose (NetCDF or NWB)", run, check
     )
     p.add_argument("run_dir", nargs="?", help="the run to record (not with --from)")
-    p.add_argument("--episodes", type=options.POSITIVE, default=4)
-    p.add_argument("--steps", type=options.POSITIVE, help="control steps per episode (default: episode length)")
+    p.add_argument("--episodes", type=options.COUNT, default=4)
+    p.add_argument("--steps", type=options.COUNT, help="control steps per episode (default: episode length)")
     options.checkpoint_flag(p)
-    p.add_argument("--seed", type=options.NON_NEGATIVE, default=0)
+    p.add_argument("--seed", type=options.SEED, default=0)
     p.add_argument("--stochastic", action="store_true", help="sample actions instead of the mean action")
     p.add_argument(
         "--format",
@@ -58,25 +58,35 @@ def check(args: argparse.Namespace) -> None:
             raise VnlError("give either RUN_DIR (record a run) or --from REC.nc (convert a recording), not both")
         if output_format(args) != "nwb":
             raise VnlError("--from converts a NetCDF recording to NWB; use --format nwb (or an --out ending in .nwb)")
-    elif not args.run_dir:
+        checks.output(args.out or default_out(args), (".nwb",), [args.source], given=bool(args.out))
+        return
+    if not args.run_dir:
         raise VnlError("give the run directory to record (or --from REC.nc to convert a recording)")
-    else:
-        checks.run_dir(args.run_dir)
-        checks.task_variants(args.set)
-    checks.output_file(args.out)
+    checks.run_dir(args.run_dir)
+    checks.task_variants(args.set)
+    out = args.out or default_out(args)
+    checks.output(out, (FORMATS[output_format(args)],), given=bool(args.out))
+    if args.viewer:
+        checks.output(Path(out).with_suffix(".rrd"), (".rrd",), given=bool(args.out))
+
+
+def default_out(args: argparse.Namespace) -> str:
+    """<run_dir>/record.nc (record.nwb with --format nwb); REC.nwb beside a --from REC.nc."""
+    if args.source:
+        return str(Path(args.source).with_suffix(".nwb"))
+    return str(Path(args.run_dir) / f"record{FORMATS[output_format(args)]}")
 
 
 def run(args: argparse.Namespace) -> int:
     from vnl import record
 
-    fmt = output_format(args)
     if args.source:
         from vnl.analysis import open_recording
 
         ds = open_recording(args.source)
         config_path = Path(str(ds.attrs.get("run_dir", ""))) / "config.yaml"
         config = config_path.read_text() if config_path.is_file() else None
-        out = _write_nwb(ds, Path(args.out or Path(args.source).with_suffix(".nwb")), config, args.experimenter)
+        out = _write_nwb(ds, Path(args.out or default_out(args)), config, args.experimenter)
         print(f"{args.source} -> {out}")
         return 0
     from vnl import typed_config
@@ -86,12 +96,11 @@ def run(args: argparse.Namespace) -> int:
     run = load_run(args.run_dir, step=checks.chosen_step(args.run_dir, args.step), env_set=args.set)
     steps = args.steps or run.config.episode_length()
     ds = record.record(run, args.episodes, steps, args.seed, deterministic=not args.stochastic)
-    default = run.run_dir / f"record{FORMATS[fmt]}"
-    if fmt == "nwb":
+    if output_format(args) == "nwb":
         config = typed_config.to_yaml(run.config)
-        out = _write_nwb(ds, Path(args.out or default), config, args.experimenter)
+        out = _write_nwb(ds, Path(args.out or default_out(args)), config, args.experimenter)
     else:
-        out = record.write(ds, args.out or default)
+        out = record.write(ds, args.out or default_out(args))
     layers = ", ".join(f"{k} ({ds.sizes[k + '_unit']})" for k in ds.data_vars if k.startswith(("policy_", "value_")))
     print(f"{run.config.env} @ step {run.step:,}: {args.episodes} episodes x {steps} steps -> {out}")
     print(f"layers: {layers}")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 from typing import Any
 
 from vnl.cli import checks, options, process
@@ -16,11 +17,11 @@ def add(sub: Any) -> None:
         "--camera", help="camera name (see --list-cameras); default: one that frames the animal (walker/tracking)"
     )
     p.add_argument("--out", help=".mp4 path (default <run_dir>/render_<camera>.mp4, render_default.mp4)")
-    p.add_argument("--steps", type=options.POSITIVE, help="control steps (default: 10 s)")
+    p.add_argument("--steps", type=options.COUNT, help="control steps (default: 10 s)")
     options.checkpoint_flag(p)
     p.add_argument("--width", type=options.integer(16, 4096), default=480)
     p.add_argument("--height", type=options.integer(16, 4096), default=360)
-    p.add_argument("--seed", type=options.NON_NEGATIVE, default=0)
+    p.add_argument("--seed", type=options.SEED, default=0)
     p.add_argument("--list-cameras", action="store_true", help="list the model's named cameras")
     p.add_argument("--env", help="with --list-cameras and no RUN_DIR: the environment")
     options.task_variant_flag(p)
@@ -33,7 +34,13 @@ def check(args: argparse.Namespace) -> None:
     if args.run_dir:
         checks.run_dir(args.run_dir)
         checks.task_variants(args.set)
-    checks.output_file(args.out)
+    if args.list_cameras:
+        return
+    checks.output(args.out or default_out(args), (".mp4",), given=bool(args.out))
+
+
+def default_out(args: argparse.Namespace) -> str:
+    return str(Path(args.run_dir) / f"render_{args.camera or 'default'}.mp4".replace("/", "_"))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -51,8 +58,7 @@ def run(args: argparse.Namespace) -> int:
     from vnl.rollout import policy_video
 
     run = load_run(args.run_dir, step=checks.chosen_step(args.run_dir, args.step), env_set=args.set)
-    name = f"render_{args.camera or 'default'}.mp4".replace("/", "_")
-    out = args.out or str(run.run_dir / name)
+    out = args.out or default_out(args)
     path, n = policy_video(run.env, run.policy, out, args.camera, args.steps, args.width, args.height, args.seed)
     print(f"wrote {n} frames to {path}")
     return 0

@@ -7,9 +7,10 @@ import time
 from pathlib import Path
 from typing import Any
 
-from vnl import typed_config
+from vnl import errors, typed_config
 from vnl.cli import checks, options, process
 from vnl.errors import VnlError
+from vnl.io import runlock
 
 
 def add(sub: Any) -> None:
@@ -29,9 +30,9 @@ def add(sub: Any) -> None:
     )
     p.add_argument("--preset", help="cpu | gpu | tiny (default: cpu without an accelerator)")
     p.add_argument("--out", help="run directory (default runs/<env>-<timestamp>)")
-    p.add_argument("--seed", type=options.NON_NEGATIVE)
-    p.add_argument("--steps", type=options.POSITIVE, help="total environment steps (ppo.num_timesteps)")
-    p.add_argument("--num-envs", type=options.POSITIVE, help="parallel environments (ppo.num_envs)")
+    p.add_argument("--seed", type=options.SEED)
+    p.add_argument("--steps", type=options.integer(1, 2**62), help="total environment steps (ppo.num_timesteps)")
+    p.add_argument("--num-envs", type=options.integer(1, 2**20), help="parallel environments (ppo.num_envs)")
     p.add_argument("--no-video", action="store_true", help="skip the final-policy video")
     p.add_argument("--vision", action="store_true", help="the policy also sees its egocentric camera (vision.enabled)")
     p.add_argument(
@@ -79,13 +80,24 @@ def check(args: argparse.Namespace) -> None:
         typed_config.parse_assignment(text)
     if args.resume:
         checks.run_dir(args.resume, "--resume")
+        checks.writable_dir(args.resume, "--resume")
+        holder = runlock.holder(args.resume)
+        if holder is not None:
+            raise VnlError(runlock.busy_message(args.resume, holder))
     if args.init_from:
         checks.run_dir(args.init_from, "--init-from")
     if args.config:
         checks.input_file(args.config, "config file")
         args.config_values = typed_config.load_yaml(args.config)
-    if args.out and Path(args.out).exists() and not Path(args.out).is_dir():
+    if not args.resume and not args.print_config and not _multi_process(args):
+        args.out = args.out or str(Path("runs") / f"{args.env}-{time.strftime('%Y%m%d-%H%M%S')}")
+        checks.new_run_dir(args.out)
+    elif args.out and Path(args.out).exists() and not Path(args.out).is_dir():
         raise VnlError(f"--out {args.out} is a file; give a directory for the run")
+
+
+def _multi_process(args: argparse.Namespace) -> bool:
+    return bool(args.distributed or args.coordinator or args.num_processes is not None or args.process_id is not None)
 
 
 def _flags(args: argparse.Namespace) -> dict[str, Any]:
@@ -122,10 +134,10 @@ def _new_config(args: argparse.Namespace, flags: dict[str, Any]) -> Any:
 def _print_config(args: argparse.Namespace, flags: dict[str, Any]) -> int:
     """Prints what the run's config.yaml would hold; nothing is built or compiled."""
     from vnl.train import config as train_config
-    from vnl.train import warm_start
+    from vnl.train import config_changes, warm_start
 
     if args.resume:
-        config = train_config.resume_config(train_config.read_config(args.resume), args.set, flags)
+        config = config_changes.resume_config(train_config.read_config(args.resume), args.set, flags)
     else:
         config = train_config.resolved(warm_start.planned(_new_config(args, flags)))
     print(typed_config.to_yaml(config), end="")
@@ -150,6 +162,12 @@ def _finisher(gl: str | None) -> Any:
         except VnlError as e:
             process.say(f"[vnl] video skipped: {e}")
             return None
+        except Exception as e:  # noqa: BLE001 - a full disk skips the video; anything else is a bug
+            line = errors.describe(e)
+            if line is None:
+                raise
+            process.say(f"[vnl] video skipped: {line}")
+            return None
         process.say(f"[vnl] video of the final policy ({n} frames): {path}")
         return Path(path)
 
@@ -159,7 +177,7 @@ def _finisher(gl: str | None) -> Any:
 def run(args: argparse.Namespace) -> int:
     from vnl.train import distributed, trainer
 
-    if args.distributed or args.coordinator or args.num_processes is not None or args.process_id is not None:
+    if _multi_process(args):
         distributed.initialize(args.coordinator, args.num_processes, args.process_id)
     lead = distributed.is_lead()
     say = process.say if lead else process.quiet  # process 0 reports for all

@@ -18,9 +18,9 @@ def add(sub: Any) -> None:
     )
     p.add_argument("source", metavar="RUN_DIR|RECORDING", help="a run (records one episode) or a `vnl record` file")
     p.add_argument("--episode", type=options.NON_NEGATIVE, default=0, help="the recording's episode (default 0)")
-    p.add_argument("--steps", type=options.POSITIVE, help="with a run: control steps (default: episode length)")
+    p.add_argument("--steps", type=options.COUNT, help="with a run: control steps (default: episode length)")
     p.add_argument("--step", type=options.step_arg, help="with a run: checkpoint step or `best` (default: newest)")
-    p.add_argument("--seed", type=options.NON_NEGATIVE, default=0)
+    p.add_argument("--seed", type=options.SEED, default=0)
     p.add_argument(
         "--units", type=options.NON_NEGATIVE, default=4, help="traces of each layer's most variable units (default 4)"
     )
@@ -31,7 +31,21 @@ def add(sub: Any) -> None:
 
 
 def check(args: argparse.Namespace) -> None:
-    checks.output_file(args.out)
+    source = Path(args.source)
+    if source.is_dir():
+        checks.run_dir(args.source)
+        if args.episode:
+            raise VnlError("--episode picks an episode of a recording; a run directory is recorded for one episode")
+    else:
+        checks.input_file(args.source, "recording")
+        if args.step is not None:
+            raise VnlError("--step chooses a checkpoint to record; a recording was given")
+    checks.output(args.out or default_out(args), (".rrd",), inputs=[args.source], given=bool(args.out))
+
+
+def default_out(args: argparse.Namespace) -> str:
+    source = Path(args.source)
+    return str(source / "view.rrd" if source.is_dir() else source.with_suffix(".rrd"))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -40,19 +54,12 @@ def run(args: argparse.Namespace) -> int:
     from vnl.policy import load_run
 
     source = Path(args.source)
+    out = Path(args.out or default_out(args))
     if source.is_file():
-        if args.step is not None:
-            raise VnlError("--step chooses a checkpoint to record; a recording was given")
         ds = open_recording(source)
-        env = viewer.recording_env(ds)
-        out = Path(args.out) if args.out else source.with_suffix(".rrd")
-        checks.output_file(str(out))
+        env = viewer.recording_env(ds, source)
     else:
-        if args.episode:
-            raise VnlError("--episode picks an episode of a recording; a run directory is recorded for one episode")
         run = load_run(source, step=checks.chosen_step(source, args.step))
-        out = Path(args.out) if args.out else run.run_dir / "view.rrd"
-        checks.output_file(str(out))
         steps = args.steps or run.config.episode_length()
         print(f"[vnl] recording 1 episode of {steps} steps of {run.run_dir} (step {run.step:,}) ...")
         ds, env = record.record(run, 1, steps, args.seed), run.env
@@ -66,10 +73,21 @@ def write_view(ds: Any, env: Any, out: Path, episode: int, units: int, camera: b
 
     path = viewer.write(ds, env, out, episode, units, camera)
     print(f"wrote {path} ({path.stat().st_size / 2**20:.1f} MB): episode {episode} of {ds.attrs.get('env', '')}")
-    rerun = [sys.executable, "-m", "rerun"]  # the viewer binary that ships with rerun-sdk
     print(f"open it: rerun {path} (desktop) | rerun --web-viewer {path} (browser) | vnl.viewer.notebook(ds, env)")
     if open_in == "desktop":
-        subprocess.Popen([*rerun, str(path)], start_new_session=True)
+        subprocess.Popen(viewer_command(path, web=False), start_new_session=True)
     elif open_in == "web":
         print("[vnl] serving the web viewer on this machine; Ctrl-C stops it")
-        subprocess.run([*rerun, "--web-viewer", "--bind", "127.0.0.1", str(path)], check=False)
+        subprocess.run(viewer_command(path, web=True), check=False)
+
+
+BIND = "127.0.0.1"
+"""Rerun's viewers serve the recording (gRPC, and the web viewer's page) on this address only:
+its default, 0.0.0.0, would offer the recording to every machine that can reach this one."""
+
+
+def viewer_command(path: Path, web: bool) -> list[str]:
+    """The command that opens `path` in Rerun's desktop viewer (or with `web`, serves its web
+    viewer), listening on `BIND` only."""
+    rerun = [sys.executable, "-m", "rerun"]  # the viewer binary that ships with rerun-sdk
+    return [*rerun, *(["--web-viewer"] if web else []), "--bind", BIND, str(path)]

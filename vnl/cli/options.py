@@ -7,6 +7,8 @@ import sys
 from collections.abc import Callable
 from typing import Any, NoReturn
 
+from vnl.typed_config import MAX_SEED
+
 
 class Parser(argparse.ArgumentParser):
     """argparse's parser, with its errors on one line (`vnl: error: ...`, exit code 2)."""
@@ -35,6 +37,10 @@ def integer(minimum: int, maximum: int | None = None) -> Callable[[str], int]:
 
 
 POSITIVE, NON_NEGATIVE = integer(1), integer(0)
+SEED = integer(0, MAX_SEED)
+COUNT = integer(1, 10**7)
+"""Episodes, steps per episode, samples: at least 1, at most ten million (a typo's extra digits
+would otherwise allocate terabytes before failing)."""
 
 
 def step_arg(text: str) -> int | str:

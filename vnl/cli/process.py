@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from vnl import headless
+from vnl.errors import VnlError
 
 
 def say(text: str) -> None:
@@ -48,7 +49,14 @@ def configure_process(mujoco_needed: bool = True) -> str | None:
     # warnings.simplefilter("always", DeprecationWarning)), ahead of the filter above: jaxopt's "no
     # longer maintained" (imported through brax.envs; brax still imports jaxopt, as ott-jax/ott#653
     # reports of it) then reached the console. Imported here, and the filter put back.
-    import dm_control.composer  # noqa: F401
+    try:
+        import dm_control.composer  # noqa: F401
+    except (ImportError, RuntimeError, OSError) as e:  # MUJOCO_GL's library missing or broken
+        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        raise VnlError(
+            f"cannot load MuJoCo's OpenGL backend (MUJOCO_GL={os.environ.get('MUJOCO_GL', '')}): {first}; "
+            "install it (Debian: apt-get install libegl1 libgl1-mesa-dri libosmesa6) or set MUJOCO_GL=disable"
+        ) from None
 
     import vnl.quiet_mjx  # noqa: F401  (mujoco.mjx without its "Failed to import warp" lines)
 
@@ -65,7 +73,8 @@ def compilation_cache(args: argparse.Namespace) -> None:
     run of the same env and shapes loads its compiled programs instead of compiling them.
 
     The directory: --compile-cache DIR, else $VNL_COMPILE_CACHE, else $XDG_CACHE_HOME/vnl/jax
-    (~/.cache/vnl/jax). One that cannot be created is reported and the cache stays off.
+    (~/.cache/vnl/jax). One that cannot be created or written, that another user owns or that
+    others may write to (`compile_cache.check_private`) is reported and the cache stays off.
     """
     if getattr(args, "no_compile_cache", True):
         return

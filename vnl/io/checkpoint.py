@@ -7,8 +7,9 @@ Each checkpoint directory holds:
 - `train_state.npz`: the whole training state (`vnl.train.loop.LoopState`: optimizer state,
   params, normalizer, env step count, the training environments' states and PRNG keys), one named
   array per leaf, what `vnl train --resume` continues from;
-- `meta.json`: the step, the epoch length, the wall time so far and the metrics record of that
-  evaluation.
+- `meta.json`: the step, the epoch length, the wall time so far, the metrics record of that
+  evaluation, the versions of vnl and its libraries that wrote it and the `format` of meta.json
+  (`META_FORMAT`).
 
 A checkpoint is written into a hidden temporary directory (`.tmp-<step>-<pid>`) and renamed to
 its step name when complete, so a crash mid-write never leaves a half-written checkpoint under a
@@ -17,11 +18,15 @@ one to `.replaced-<step>`, renames the new one into place, then deletes the old 
 moment one complete checkpoint of that step exists (`steps` and `step_dir` read a `.replaced-`
 one whose successor never arrived). Old checkpoints are renamed to `.deleting-<step>` before
 they are deleted. `tidy` (called by `save` and on resume) finishes or undoes what a killed
-process left.
+process left. Durability: every file of the temporary directory is fsynced before it is renamed,
+and every rename is followed by an fsync of the directory (`vnl.durable`), so a power cut never
+leaves a step name pointing at data still in the page cache.
 
-Loading skips (with a warning) a checkpoint that is corrupt and falls back to the next older one;
-an I/O error (a transient NFS failure, a permission problem) is not corruption: it stops with a
-`VnlError` and nothing is set aside.
+Parameters that are not finite (a diverged run) are never written (`save` refuses them) and a
+checkpoint holding them is not loaded. Loading skips (with a warning) a checkpoint that is
+corrupt — unreadable files, non-finite parameters, a meta.json that is not what `save` writes
+(`check_meta`) — and falls back to the next older one; an I/O error (a transient NFS failure, a
+permission problem) is not corruption: it stops with a `VnlError` and nothing is set aside.
 """
 
 from __future__ import annotations
@@ -37,6 +42,7 @@ from typing import Any
 
 import numpy as np
 
+from vnl import durable, safe_yaml
 from vnl.errors import VnlError
 
 _STEP_DIR = re.compile(r"^\d{12}$")
@@ -44,6 +50,13 @@ _REPLACED = re.compile(r"^\.replaced-(\d{12})$")
 PARAMS = "params"
 TRAIN_STATE = "train_state.npz"
 META = "meta.json"
+META_FORMAT = 1
+"""meta.json's format: 1 adds `format` and `versions` (checkpoints without `format` are 0)."""
+CHECKED_ARRAYS = (".training.params.", ".training.normalizer_params.")
+"""The training-state arrays that must be finite (the networks and the observation normalizer)."""
+VERSIONS = (
+    "vnl", "jax", "jaxlib", "mujoco", "mujoco-mjx", "brax", "flax", "optax", "orbax-checkpoint", "numpy"
+)  # fmt: skip
 
 
 def checkpoint_dir(run_dir: str | Path) -> Path:
@@ -73,15 +86,46 @@ def tidy(run_dir: str | Path) -> None:
             if final.is_dir():
                 shutil.rmtree(p, ignore_errors=True)
             else:
-                os.rename(p, final)
+                durable.rename(p, final)
 
 
 def _remove(path: Path) -> None:
     """Deletes a checkpoint directory: renamed first, so a kill mid-delete leaves no partial
     checkpoint under a step name."""
     doomed = path.with_name(f".deleting-{path.name.removeprefix('.replaced-')}-{os.getpid()}")
-    os.rename(path, doomed)
+    durable.rename(path, doomed)
     shutil.rmtree(doomed, ignore_errors=True)
+
+
+def software_versions() -> dict[str, str]:
+    """The versions of Python, vnl and the libraries a checkpoint's numbers depend on."""
+    import platform
+    from importlib import metadata
+
+    found = {"python": platform.python_version()}
+    for name in VERSIONS:
+        try:
+            found[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            continue
+    return found
+
+
+def _finite_tree(tree: Any) -> bool:
+    import jax
+
+    return all(
+        np.isfinite(x).all() for x in map(np.asarray, jax.tree.leaves(tree)) if np.issubdtype(x.dtype, np.inexact)
+    )
+
+
+def nonfinite_arrays(arrays: dict[str, np.ndarray]) -> list[str]:
+    """The names of the network and normalizer arrays (`CHECKED_ARRAYS`) with a NaN or inf."""
+    return [
+        k
+        for k, v in arrays.items()
+        if k.startswith(CHECKED_ARRAYS) and np.issubdtype(np.asarray(v).dtype, np.inexact) and not np.isfinite(v).all()
+    ]
 
 
 def save(
@@ -93,7 +137,8 @@ def save(
     meta: dict[str, Any] | None = None,
     keep_best: str | None = None,
 ) -> Path:
-    """Writes checkpoint `step` atomically; keeps the newest `keep` (0 = all) and, with
+    """Writes checkpoint `step` atomically; keeps the newest `keep` (0 = all), step 0 (the
+    untrained policy, or a warm start's parent: the control of every analysis) and, with
     `keep_best`, the one whose evaluation scored highest on that metric (`best`). Returns
     its path.
 
@@ -106,6 +151,11 @@ def save(
     import jax
     from flax.training import orbax_utils
 
+    # numpy leaves: orbax refuses host-local jax.Arrays in a multi-process run.
+    params = _numpy_tree(jax.device_get(params))
+    bad = nonfinite_arrays(train_state or {})
+    if bad or not _finite_tree(params):
+        raise ValueError(f"refusing to write checkpoint {step}: non-finite parameters ({', '.join(bad[:3])})")
     root = checkpoint_dir(run_dir)
     root.mkdir(parents=True, exist_ok=True)
     tidy(run_dir)
@@ -113,33 +163,28 @@ def save(
     tmp = root / f".tmp-{step:012d}-{os.getpid()}"
     try:
         tmp.mkdir()
-        # numpy leaves: orbax refuses host-local jax.Arrays in a multi-process run.
-        params = _numpy_tree(jax.device_get(params))
         checkpointer = _checkpointer()
         checkpointer.save((tmp / PARAMS).absolute(), params, save_args=orbax_utils.save_args_from_target(params))
         if train_state is not None:
             with open(tmp / TRAIN_STATE, "wb") as f:
                 np.savez(f, **train_state)
-                f.flush()
-                os.fsync(f.fileno())
         with open(tmp / META, "w") as f:
-            json.dump({"step": int(step), **(meta or {})}, f)
-            f.flush()
-            os.fsync(f.fileno())
+            json.dump({"step": int(step), "format": META_FORMAT, **(meta or {})}, f)
+        durable.fsync_tree(tmp)  # orbax's files too: all on disk before the step name points at them
     except BaseException:  # disk full, Ctrl-C mid-write, ...: leave no partial checkpoint behind
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     replaced = root / f".replaced-{step:012d}"
     if final.exists():  # an older write of the same step (e.g. a resumed run redoing it)
-        os.rename(final, replaced)
-    os.rename(tmp, final)
+        durable.rename(final, replaced)
+    durable.rename(tmp, final)
     if replaced.exists():
         _remove(replaced)
     if keep > 0:
         found = best(run_dir, keep_best) if keep_best else None
         spared = found[0] if found else None
         for old in steps(run_dir)[:-keep]:
-            if old != spared:
+            if old not in (spared, 0):
                 _remove(step_dir(run_dir, old))
     return final
 
@@ -185,8 +230,8 @@ def steps(run_dir: str | Path) -> list[int]:
 def _record(run_dir: str | Path, step: int) -> dict[str, Any]:
     """The evaluation record saved with checkpoint `step` (its meta.json); {} when unreadable."""
     try:
-        with open(step_dir(run_dir, step) / META) as f:
-            record = json.load(f).get("record", {})
+        with open(step_dir(run_dir, step) / META, "rb") as f:
+            record = safe_yaml.load_json(f.read(1 << 20), META).get("record", {})
     except (OSError, ValueError, AttributeError):
         return {}
     return record if isinstance(record, dict) else {}
@@ -240,11 +285,12 @@ def is_io_error(e: BaseException) -> bool:
 
 
 def _first_readable(run_dir: str | Path, step: int | None, read: Any, what: str) -> tuple[int, Any]:
+    """(step, read(path, step)) of checkpoint `step`, or of the newest one `read` can read."""
     errors = []
     for s in _candidates(run_dir, step):
         path = step_dir(run_dir, s)
         try:
-            return s, read(path)
+            return s, read(path, s)
         except Exception as e:  # noqa: BLE001 - a corrupt checkpoint falls back to an older one
             if is_io_error(e):
                 raise VnlError(
@@ -257,12 +303,15 @@ def _first_readable(run_dir: str | Path, step: int | None, read: Any, what: str)
     raise VnlError(f"no readable {what} in {checkpoint_dir(run_dir)} ({'; '.join(errors)})")
 
 
-def _read_params(path: Path) -> Any:
+def _read_params(path: Path, step: int) -> Any:
     from brax.training import checkpoint as brax_checkpoint
 
     # Runs written before train_state existed kept the params at the top of the step directory.
     target = path / PARAMS if (path / PARAMS).is_dir() else path
-    return brax_checkpoint.load(target.absolute())
+    params = brax_checkpoint.load(target.absolute())
+    if not _finite_tree(params):
+        raise ValueError("its parameters are not finite (a diverged run)")
+    return params
 
 
 def load(run_dir: str | Path, step: int | None = None) -> tuple[int, Any]:
@@ -274,17 +323,54 @@ def load(run_dir: str | Path, step: int | None = None) -> tuple[int, Any]:
     return _first_readable(run_dir, step, _read_params, "checkpoint")
 
 
-def _read_train_state(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-    if not (path / TRAIN_STATE).is_file():
-        raise FileNotFoundError(f"no {TRAIN_STATE} (written by a vnl without resume support?)")
-    with np.load(path / TRAIN_STATE, allow_pickle=False) as z:
-        arrays = {k: z[k] for k in z.files}
-    with open(path / META) as f:
-        meta = json.load(f)
-    return arrays, meta
+def check_meta(meta: Any, step: int, required: tuple[str, ...] = ()) -> dict[str, Any]:
+    """`meta` (a checkpoint's meta.json) when it is what `save` writes for checkpoint `step`: a
+    mapping whose `step` is `step`, with well-formed `training_steps_per_epoch`, `record` and
+    `observation_layout` where present (and the `required` keys), of a format this vnl reads;
+    else a `ValueError` saying what is wrong (the loaders then fall back to an older checkpoint)."""
+    if not isinstance(meta, dict):
+        raise ValueError(f"{META} holds {type(meta).__name__}, not a mapping")
+    missing = [k for k in ("step", *required) if k not in meta]
+    if missing:
+        raise ValueError(f"{META} has no {', '.join(missing)}")
+    if meta["step"] != step or isinstance(meta["step"], bool):
+        raise ValueError(f"{META} is of step {meta['step']!r}, not of this checkpoint's step {step}")
+    epoch = meta.get("training_steps_per_epoch", 1)
+    if not isinstance(epoch, int) or isinstance(epoch, bool) or epoch < 1:
+        raise ValueError(f"{META}: training_steps_per_epoch is {epoch!r}, not a positive integer")
+    if not isinstance(meta.get("record", {}), dict):
+        raise ValueError(f"{META}: record is not a mapping")
+    layout = meta.get("observation_layout", [])
+    if not isinstance(layout, list) or not all(
+        isinstance(b, list) and len(b) == 2 and isinstance(b[0], str) and type(b[1]) is int for b in layout
+    ):
+        raise ValueError(f"{META}: observation_layout is not a list of [name, width]")
+    fmt = meta.get("format", 0)
+    if not isinstance(fmt, int) or isinstance(fmt, bool) or fmt > META_FORMAT:
+        raise ValueError(f"{META} is of format {fmt!r}, newer than this vnl reads ({META_FORMAT}); upgrade vnl")
+    return meta
 
 
-def load_train_state(run_dir: str | Path, step: int | None = None) -> tuple[int, dict[str, np.ndarray], dict[str, Any]]:
-    """(step, arrays, meta) of the full training state of checkpoint `step` (None: newest readable)."""
-    s, (arrays, meta) = _first_readable(run_dir, step, _read_train_state, "training state")
+def _train_state_reader(required: tuple[str, ...]) -> Any:
+    def read(path: Path, step: int) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        if not (path / TRAIN_STATE).is_file():
+            raise FileNotFoundError(f"no {TRAIN_STATE} (written by a vnl without resume support?)")
+        with open(path / META, "rb") as f:
+            meta = check_meta(safe_yaml.load_json(f.read(1 << 20), META), step, required)
+        with np.load(path / TRAIN_STATE, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+        bad = nonfinite_arrays(arrays)
+        if bad:
+            raise ValueError(f"non-finite parameters (a diverged run): {', '.join(bad[:3])}")
+        return arrays, meta
+
+    return read
+
+
+def load_train_state(
+    run_dir: str | Path, step: int | None = None, required: tuple[str, ...] = ()
+) -> tuple[int, dict[str, np.ndarray], dict[str, Any]]:
+    """(step, arrays, meta) of the full training state of checkpoint `step` (None: the newest
+    readable one, whose meta.json has the `required` keys; see `check_meta`)."""
+    s, (arrays, meta) = _first_readable(run_dir, step, _train_state_reader(required), "training state")
     return s, arrays, meta

@@ -1,4 +1,4 @@
-"""metrics.jsonl: one JSON object per evaluation, flushed and fsynced as it is written."""
+"""metrics.jsonl: one JSON object per evaluation, on disk (fsynced) before the next step."""
 
 from __future__ import annotations
 
@@ -8,24 +8,52 @@ import os
 from pathlib import Path
 from typing import Any
 
+from vnl import durable, safe_yaml
 from vnl.errors import VnlError
 
 
 class JsonlWriter:
-    """Appends one JSON line per call; each line is on disk before `write` returns."""
+    """Appends one JSON line per call; each line is on disk before `write` returns.
+
+    Unbuffered (`os.write` until the whole line is written, then `fsync`), so nothing is left to
+    fail when the file is closed. A write that fails (a full disk) cuts the file back to its last
+    complete line, so no partial line is left for a later write to follow, and raises the
+    `OSError`; the writer then refuses further writes. `close` never raises.
+    """
 
     def __init__(self, path: str | Path) -> None:
         self._path = Path(path)
-        self._file = open(self._path, "a")  # noqa: SIM115 - closed in close()
+        self._fd: int | None = os.open(self._path, os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_CLOEXEC, 0o644)
+        self._good = os.fstat(self._fd).st_size  # the size after the last complete line
+        self.broken: OSError | None = None
 
     def write(self, record: dict[str, Any]) -> None:
-        self._file.write(json.dumps(_jsonable(record)) + "\n")
-        self._file.flush()
-        os.fsync(self._file.fileno())
+        if self._fd is None:
+            raise ValueError(f"{self._path} is closed")
+        if self.broken is not None:
+            raise self.broken
+        data = (json.dumps(_jsonable(record)) + "\n").encode()
+        try:
+            view = memoryview(data)
+            while view:
+                view = view[os.write(self._fd, view) :]
+            os.fsync(self._fd)
+        except OSError as e:
+            self.broken = e
+            try:
+                os.ftruncate(self._fd, self._good)
+            except OSError:
+                pass  # a torn last line is dropped when the file is read
+            raise
+        self._good += len(data)
 
     def close(self) -> None:
-        if not self._file.closed:
-            self._file.close()
+        fd, self._fd = self._fd, None
+        if fd is not None:
+            try:
+                os.close(fd)
+            except OSError:
+                pass  # every line was fsynced when written
 
 
 def _jsonable(value: Any) -> Any:
@@ -41,15 +69,8 @@ def _jsonable(value: Any) -> Any:
 
 
 def rewrite(path: str | Path, records: list[dict[str, Any]]) -> None:
-    """Replaces the file with `records`, atomically (temp file + rename)."""
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w") as f:
-        for record in records:
-            f.write(json.dumps(_jsonable(record)) + "\n")
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    """Replaces the file with `records`, atomically and durably (`durable.write_atomic`)."""
+    durable.write_atomic(path, "".join(json.dumps(_jsonable(record)) + "\n" for record in records))
 
 
 def read(path: str | Path) -> list[dict[str, Any]]:
@@ -73,10 +94,11 @@ def read(path: str | Path) -> list[dict[str, Any]]:
         if not line.strip():
             continue
         try:
-            record = json.loads(line)
-        except json.JSONDecodeError:
+            record = safe_yaml.load_json(line, "a metrics line")
+        except ValueError:
             record = None
-        if isinstance(record, dict) and isinstance(record.get("step"), int):
+        step = record.get("step") if isinstance(record, dict) else None
+        if isinstance(step, int) and not isinstance(step, bool):
             records.append({k: math.nan if v is None else v for k, v in record.items()})
         elif number != last:
             raise VnlError(

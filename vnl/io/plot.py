@@ -5,6 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from vnl import durable
+
 
 def learning_curve(records: list[dict[str, Any]], out: str | Path, title: str = "") -> Path:
     """Eval reward (± std) and mean forward velocity against env steps, saved as a PNG."""
@@ -37,7 +39,7 @@ def learning_curve(records: list[dict[str, Any]], out: str | Path, title: str = 
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(out, dpi=100)
+    durable.write_atomic(out, writer=lambda tmp: fig.savefig(tmp, dpi=100))
     return Path(out)
 
 
@@ -57,25 +59,38 @@ def lineage(run_dir: str | Path) -> list[tuple[Path, int | None]]:
     [(run directory, the step its child started from; None for the run itself)].
 
     Each run's config.yaml names its parent (`init.run`, `init.step`); a parent that was moved
-    is looked for next to its child by name. A missing parent is a `VnlError`.
+    is looked for next to its child by name (`vnl.train.warm_start.check_lineage` then checks it
+    is the one the child started from). A missing parent is a `VnlError`.
     """
-    import yaml
-
     from vnl.errors import VnlError
 
     chain: list[tuple[Path, int | None]] = [(Path(run_dir), None)]
     while len(chain) < 100:
-        path = chain[0][0] / "config.yaml"
-        init = ((yaml.safe_load(path.read_text()) or {}).get("init") or {}) if path.is_file() else {}
+        child = chain[0][0]
+        init = _config_values(child).get("init") or {}
+        if not isinstance(init, dict) or not isinstance(init.get("run") or "", str):
+            raise VnlError(f"{child / 'config.yaml'}: init is not a mapping with a run directory (init.run)")
         if not init.get("run"):
             return chain
         parent = Path(init["run"])
-        if not (parent / "metrics.jsonl").is_file() and (chain[0][0].parent / parent.name / "metrics.jsonl").is_file():
-            parent = chain[0][0].parent / parent.name
+        if not (parent / "metrics.jsonl").is_file() and (child.parent / parent.name / "metrics.jsonl").is_file():
+            parent = child.parent / parent.name
         if not (parent / "metrics.jsonl").is_file():
-            raise VnlError(f"the parent of {chain[0][0]}, {init['run']}, has no metrics.jsonl (moved or deleted?)")
-        chain.insert(0, (parent, int(init.get("step") or 0)))
+            raise VnlError(f"the parent of {child}, {init['run']}, has no metrics.jsonl (moved or deleted?)")
+        step = init.get("step") or 0
+        if not isinstance(step, int) or isinstance(step, bool):
+            raise VnlError(f"{child / 'config.yaml'}: init.step is {step!r}, not a checkpoint step")
+        chain.insert(0, (parent, step))
     raise VnlError(f"{run_dir}: its lineage is longer than 100 runs (a cycle of init.run?)")
+
+
+def _config_values(run_dir: Path) -> dict[str, Any]:
+    """The values of a run's config.yaml ({} without one); `VnlError` when it is not a readable
+    YAML mapping (`typed_config.load_yaml`)."""
+    from vnl import typed_config
+
+    path = run_dir / "config.yaml"
+    return typed_config.load_yaml(str(path), "config.yaml of the run") if path.exists() else {}
 
 
 def resolve_metric(name: str, available: set[str]) -> str:
@@ -93,8 +108,7 @@ def group_key(run_dir: Path) -> str:
     """Runs that differ only in seed, output and logging settings share a group."""
     import yaml
 
-    cfg = yaml.safe_load((run_dir / "config.yaml").read_text()) if (run_dir / "config.yaml").is_file() else {}
-    cfg = {k: v for k, v in (cfg or {}).items() if k not in ("seed", "log")}
+    cfg = {k: v for k, v in _config_values(run_dir).items() if k not in ("seed", "log")}
     return yaml.safe_dump(cfg, sort_keys=True)
 
 
@@ -160,7 +174,7 @@ def compare_runs(run_dirs: list[str | Path], metric: str, out: str | Path, linea
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(out, dpi=100)
+    durable.write_atomic(out, writer=lambda tmp: fig.savefig(tmp, dpi=100))
     return Path(out)
 
 

@@ -8,6 +8,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from vnl import durable
 from vnl.errors import VnlError
 from vnl.vision.camera import camera_names
 
@@ -76,11 +77,9 @@ def render_frames(
 def write_mp4(frames: Sequence[np.ndarray] | np.ndarray, path: str | Path, fps: float) -> Path:
     """Writes uint8 frames (T, H, W, 3) as an H.264 .mp4 (ffmpeg from imageio-ffmpeg)."""
     mediapy = _mediapy()
-    path = Path(path)
-    tmp = path.with_name(path.stem + ".tmp" + path.suffix)
-    mediapy.write_video(str(tmp), np.asarray(frames), fps=fps)
-    tmp.replace(path)
-    return path
+    return durable.write_atomic(
+        Path(path), writer=lambda tmp: mediapy.write_video(str(tmp), np.asarray(frames), fps=fps)
+    )
 
 
 def show(frames: Sequence[np.ndarray] | np.ndarray, fps: float, width: int | None = None) -> None:

@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from vnl import durable
 from vnl.neuro import features as F
 
 
@@ -134,5 +135,5 @@ def figure(result: Decoding, out: str | Path, dt: float = 1.0) -> Path:
     fig.suptitle(result.source, fontsize=10)
     fig.tight_layout()
     out = Path(out)
-    fig.savefig(out, dpi=100)
+    durable.write_atomic(out, writer=lambda tmp: fig.savefig(tmp, dpi=100))
     return out

@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from vnl import durable
 from vnl.neuro import features as F
 
 
@@ -144,5 +145,5 @@ def figure(result: Encoding, out: str | Path) -> Path:
     fig.suptitle(result.source, fontsize=10)
     fig.tight_layout()
     out = Path(out)
-    fig.savefig(out, dpi=100)
+    durable.write_atomic(out, writer=lambda tmp: fig.savefig(tmp, dpi=100))
     return out

@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from vnl import durable
 from vnl.errors import VnlError
 
 SPECIES = {  # walker -> (species, NWB's binomial or NCBI taxonomy form)
@@ -97,8 +98,8 @@ def _file(ds: Any, config: str | None, command: str | None, experimenter: str | 
     notes["config"] = config
     return NWBFile(
         session_description=(
-            f"vnl record: {ds.sizes['episode']} episodes of a trained policy on {ds.attrs.get('env', '?')} "
-            f"(checkpoint step {step}), every network layer's activity with the body's pose and behaviour"
+            f"vnl record: {ds.sizes['episode']} episodes of a policy on {ds.attrs.get('env', '?')} at checkpoint "
+            f"step {step} (0: untrained), every network layer's activity with the body's pose and behaviour"
         ),
         identifier=str(uuid.uuid4()),
         session_start_time=now,
@@ -283,12 +284,12 @@ def write(
     )
     for table in _intervals(ds, episode, time, first, dt):
         nwb.add_time_intervals(table)
-    path = Path(path)
-    tmp = path.with_name(f".{path.stem}.partial.nwb")  # pynwb warns about names not ending in .nwb
-    with NWBHDF5IO(str(tmp), "w") as io:
-        io.write(nwb)
-    tmp.replace(path)
-    return path
+
+    def writer(tmp: Path) -> None:  # the temporary name keeps .nwb: pynwb warns about others
+        with NWBHDF5IO(str(tmp), "w") as io:
+            io.write(nwb)
+
+    return durable.write_atomic(Path(path), writer=writer)
 
 
 def inspect(path: str | Path) -> list[Any]:

@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from vnl import durable
 from vnl.errors import VnlError
 from vnl.neuro import features as F
 
@@ -224,5 +225,5 @@ def figure(result: States, out: str | Path, dt: float = 1.0) -> Path:
     fig.suptitle(result.source, fontsize=10)
     fig.tight_layout()
     out = Path(out)
-    fig.savefig(out, dpi=100)
+    durable.write_atomic(out, writer=lambda tmp: fig.savefig(tmp, dpi=100))
     return out

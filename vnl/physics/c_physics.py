@@ -153,12 +153,18 @@ def available_cores() -> int:
         return os.cpu_count() or 1
 
 
+MAX_THREADS = 1024
+"""More threads than any machine has cores: a typo (MuJoCo would start them all)."""
+
+
 def resolve_threads(threads: int | None) -> int:
-    """`threads` checked (>= 1), or the cores this process may use when None."""
+    """`threads` checked (1 to `MAX_THREADS`), or the cores this process may use when None."""
     if threads is None:
         return available_cores()
-    if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
-        raise VnlError(f"threads must be a whole number >= 1 (or null for all cores), got {threads!r}")
+    if isinstance(threads, bool) or not isinstance(threads, int) or not 1 <= threads <= MAX_THREADS:
+        raise VnlError(
+            f"threads must be a whole number >= 1 and <= {MAX_THREADS} (or null for all cores), got {threads!r}"
+        )
     return threads
 
 
@@ -259,7 +265,17 @@ class CPhysics:
     def _batch(self, nsim: int) -> tuple[mj_batch.Batch, dict[str, np.ndarray]]:
         """A batch of `nsim` simulations (made once per size) and the per-env fields written to it."""
         if nsim not in self._batches:
-            batch = mj_batch.Batch(self.model, nsim, self.threads)
+            try:
+                if nsim > 2**31 - 1:  # MuJoCo counts simulations in 32 bits
+                    raise MemoryError
+                batch = mj_batch.Batch(self.model, nsim, self.threads)
+            except (MemoryError, ValueError) as e:  # pybind11 gives C++'s bad_alloc as ValueError
+                if not isinstance(e, MemoryError) and "bad_alloc" not in str(e):
+                    raise
+                raise VnlError(
+                    f"out of memory making {nsim:,} MuJoCo simulations ({nsim:,} environments); use fewer "
+                    "(--num-envs, ppo.num_envs, num_eval_envs) or env_config.impl: jax"
+                ) from None
             for name in DERIVED:
                 batch.bind(name)
             self._batches[nsim] = (batch, {})

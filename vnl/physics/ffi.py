@@ -16,6 +16,9 @@ the cached program.
 The handler follows XLA's FFI C API (`jaxlib/include/xla/ffi/api/c_api.h`, API 0.2): it answers
 the metadata query XLA sends at registration, runs only in the execute stage, and reports a
 Python exception as an XLA error (`XLA_FFI_Error_Create`), which JAX raises as a runtime error.
+The exception itself is kept (`vnl.errors.keep`) under a token the message carries, so the CLI
+reports what the host function raised (`vnl.errors.original`): a `VnlError`, no memory, a
+storage error as one line; anything else with its own traceback.
 On other platforms (a GPU) `call` falls back to `jax.pure_callback`.
 """
 
@@ -29,6 +32,8 @@ from typing import Any
 
 import jax
 import numpy as np
+
+from vnl import errors
 
 TARGET = "vnl_host_call"
 HostFn = Callable[[list[np.ndarray], list[np.ndarray]], None]
@@ -208,7 +213,8 @@ def _handle(frame_ptr: Any) -> int | None:
         fn(inputs, outputs)
         return None
     except BaseException as e:  # an exception must not cross into XLA's C++ frames
-        return _error(frame, f"{TARGET}: {type(e).__name__}: {e}\n{traceback.format_exc(limit=4)}")
+        tag = errors.keep(e)
+        return _error(frame, f"{TARGET}: {tag} {type(e).__name__}: {e}\n{traceback.format_exc(limit=4)}")
 
 
 _HANDLER = _HANDLER_TYPE(_handle)  # kept alive for the life of the process
@@ -247,7 +253,10 @@ def call(key: int, results: Sequence[jax.ShapeDtypeStruct], *args: jax.Array) ->
     def host(*arrays: np.ndarray) -> list[np.ndarray]:
         batch = arrays[0].shape[: arrays[0].ndim - rank]
         outputs = [np.empty(tuple(batch) + tuple(r.shape), r.dtype) for r in results]
-        fn([np.asarray(a) for a in arrays], outputs)
+        try:
+            fn([np.asarray(a) for a in arrays], outputs)
+        except BaseException as e:  # noqa: BLE001 - kept for the CLI, as for the FFI handler
+            raise RuntimeError(f"{TARGET}: {errors.keep(e)} {type(e).__name__}: {e}") from e
         return outputs
 
     return list(jax.pure_callback(host, list(results), *args, vmap_method="broadcast_all"))

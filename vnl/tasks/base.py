@@ -23,6 +23,7 @@ from vnl.quiet_mjx import mjx
 from vnl.tasks.contract import Env
 from vnl.walkers import mjx_compat
 from vnl.walkers.base import Walker
+from vnl.walkers.from_file import file_sha256
 
 UPRIGHT_COS = float(np.cos(np.deg2rad(45.0)))
 """A walker counts as upright while its root body's z-axis is within 45° of vertical."""
@@ -33,11 +34,14 @@ class WalkerTaskConfig:
     """Fields shared by every walker task. Times in seconds, lengths in metres.
 
     `walker_xml` (a path to an MJCF file) replaces the built-in `walker`; `root_body` names the
-    body whose subtree is the animal (forward velocity, height, egocentric frame).
+    body whose subtree is the animal (forward velocity, height, egocentric frame). A run's
+    config.yaml holds the file's absolute path and `walker_xml_sha256`, its SHA-256 (empty: not
+    checked), so a run is rebuilt with the file it was trained with or not at all.
     """
 
     walker: Literal["ant", "humanoid", "rodent", "brax_ant", "brax_humanoid"] = "ant"
     walker_xml: str = ""
+    walker_xml_sha256: str = ""
     root_body: str = "torso"
     episode_length: int = 1000  # control steps per episode
     physics_timestep: float = 0.01
@@ -80,6 +84,8 @@ class WalkerTaskConfig:
         for key in ("episode_length", "n_substeps", "iterations", "ls_iterations"):
             if getattr(self, key) < 1:
                 raise VnlError(f"{key} must be >= 1, got {getattr(self, key)}")
+            if getattr(self, key) > 10**7:
+                raise VnlError(f"{key} must be at most 10,000,000, got {getattr(self, key):,}")
         if not self.physics_timestep > 0:
             raise VnlError(f"physics_timestep must be > 0, got {self.physics_timestep}")
         if self.physics_timestep > 0.05:
@@ -92,6 +98,12 @@ class WalkerTaskConfig:
             path = Path(self.walker_xml).expanduser()
             if not path.is_file():
                 raise VnlError(f"walker_xml: no such file {str(path)!r}; give the path of an MJCF (.xml) model")
+            if self.walker_xml_sha256 and file_sha256(path) != self.walker_xml_sha256:
+                raise VnlError(
+                    f"walker_xml: {str(path)!r} is not the file this run was trained with (its SHA-256 was "
+                    f"{self.walker_xml_sha256[:12]}..., it is now {file_sha256(path)[:12]}...); put the original back, "
+                    "or train a new run on this one"
+                )
         if not self.root_body:
             raise VnlError("root_body must name a body of the walker, e.g. torso")
         control_dt = self.physics_timestep * self.n_substeps

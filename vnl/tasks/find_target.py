@@ -73,8 +73,8 @@ class FindTargetConfig:
     threads: int | None = None
 
     def validate(self) -> None:
-        if self.episode_length < 1 or self.n_substeps < 1:
-            raise VnlError("episode_length and n_substeps must be >= 1")
+        if not (1 <= self.episode_length <= 10**7 and 1 <= self.n_substeps <= 10**4):
+            raise VnlError("episode_length must be in 1..10,000,000 and n_substeps in 1..10,000")
         if not 0 < self.physics_timestep <= 0.05:
             raise VnlError(f"physics_timestep must be in (0, 0.05], got {self.physics_timestep}")
         if not 0 <= self.target_min_distance <= self.target_max_distance:

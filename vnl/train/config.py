@@ -16,6 +16,12 @@ from vnl.envs.randomize import RandomizeConfig
 from vnl.errors import VnlError
 from vnl.train import presets
 from vnl.vision.env import VisionConfig
+from vnl.walkers.from_file import file_sha256
+
+MAX_ENVS = 2**20
+MAX_LAYER = 2**16
+MAX_EPISODE_LENGTH = 10**7
+"""Sanity bounds: far above any real run, far below what would exhaust memory before failing."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -91,17 +97,20 @@ class PPOConfig:
                 raise VnlError("ppo.desired_kl and ppo.learning_rate_final are two learning-rate schedules; set one")
         if self.entropy_cost < 0:
             raise VnlError(f"entropy_cost must be >= 0, got {self.entropy_cost}")
-        for key in ("discounting", "gae_lambda"):
+        for key in ("discounting", "gae_lambda", "clipping_epsilon"):
             if not 0 < getattr(self, key) <= 1:
                 raise VnlError(f"{key} must be in (0, 1], got {getattr(self, key)}")
+        for key in ("num_envs", "batch_size", "num_eval_envs"):
+            if getattr(self, key) > MAX_ENVS:
+                raise VnlError(f"{key} must be at most {MAX_ENVS:,}, got {getattr(self, key):,}")
         if (self.batch_size * self.num_minibatches) % self.num_envs:
             raise VnlError(
                 f"batch_size × num_minibatches ({self.batch_size} × {self.num_minibatches} = "
                 f"{self.batch_size * self.num_minibatches}) must be a multiple of num_envs "
                 f"({self.num_envs}); e.g. set num_envs to {self.batch_size} or change batch_size"
             )
-        if self.episode_length is not None and self.episode_length < 1:
-            raise VnlError(f"episode_length must be >= 1, got {self.episode_length}")
+        if self.episode_length is not None and not 1 <= self.episode_length <= MAX_EPISODE_LENGTH:
+            raise VnlError(f"episode_length must be in 1..{MAX_EPISODE_LENGTH:,}, got {self.episode_length}")
         if self.max_grad_norm is not None and self.max_grad_norm <= 0:
             raise VnlError(f"max_grad_norm must be > 0, got {self.max_grad_norm}")
 
@@ -158,6 +167,8 @@ class NetworkConfig:
             sizes = getattr(self, key)
             if not sizes or any(s < 1 for s in sizes):
                 raise VnlError(f"{key} must be a non-empty list of positive sizes, got {list(sizes)}")
+            if any(s > MAX_LAYER for s in sizes) or len(sizes) > 64:
+                raise VnlError(f"{key}: at most 64 layers of at most {MAX_LAYER:,} units, got {list(sizes)}")
         n = len(self.cnn_channels)
         if len(self.cnn_kernel_sizes) != n or len(self.cnn_strides) != n:
             raise VnlError(
@@ -199,10 +210,10 @@ class LogConfig:
                 f"keep_best must name a metric of metrics.jsonl (eval/... or training/...), got {self.keep_best!r}; "
                 "e.g. eval/episode_reward, or null to keep only the newest checkpoints"
             )
-        if self.video_seconds <= 0:
-            raise VnlError(f"video_seconds must be > 0, got {self.video_seconds}")
-        if self.video_width < 16 or self.video_height < 16:
-            raise VnlError("video_width and video_height must be >= 16")
+        if not 0 < self.video_seconds <= 3600:
+            raise VnlError(f"video_seconds must be in (0, 3600], got {self.video_seconds}")
+        if not (16 <= self.video_width <= 4096 and 16 <= self.video_height <= 4096):
+            raise VnlError("video_width and video_height must be in 16..4096")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -277,8 +288,8 @@ class TrainConfig:
                 f"randomize: domain randomization changes MJX's model only; env_config.backend is "
                 f"{env_config.backend!r}. Use backend: mjx or turn randomize off"
             )
-        if self.seed < 0:
-            raise VnlError(f"seed must be >= 0, got {self.seed}")
+        if not 0 <= self.seed <= config_lib.MAX_SEED:
+            raise VnlError(f"seed must be in 0..{config_lib.MAX_SEED} (JAX uses 32 bits of it), got {self.seed}")
         if self.init.keep_optimizer and self.ppo.learning_rate_final is not None:
             raise VnlError(
                 "--keep-optimizer with ppo.learning_rate_final: the decay counts the optimizer's updates, so it "
@@ -338,6 +349,8 @@ def build(
     file_values = dict(file_values or {})
     if "env" in file_values and file_values["env"] != env:
         raise VnlError(f"the config file is for env {file_values['env']!r} but {env!r} was asked for")
+    if "preset" in file_values:  # checked even when --preset overrides it: never silently ignored
+        presets.check_name(file_values["preset"])
     preset = presets.check_name(preset or file_values.get("preset") or default_preset())
     values: dict[str, Any] = config_lib.merge({"env": env, "preset": preset}, presets.resolve(env, preset))
     values = config_lib.merge(values, file_values)
@@ -346,7 +359,8 @@ def build(
         values = config_lib.merge(values, config_lib.parse_assignment(text))
     values = config_lib.merge(values, flags or {})
     explicit = [file_values, flags or {}, *(config_lib.parse_assignment(a) for a in assignments or [])]
-    values = _curriculum_length(values, any("num_timesteps" in (v.get("ppo") or {}) for v in explicit))
+    given = any(isinstance(v.get("ppo"), dict) and "num_timesteps" in v["ppo"] for v in explicit)
+    values = _curriculum_length(values, given)
     return config_lib.from_dict(TrainConfig, values)
 
 
@@ -364,13 +378,23 @@ def _curriculum_length(values: dict[str, Any], explicit: bool) -> dict[str, Any]
 
 
 def resolved(config: TrainConfig) -> TrainConfig:
-    """The config with `env_config` expanded to the env's full config and the learning rate's
-    decay length made explicit (what config.yaml holds)."""
-    full = config_lib.to_dict(config.resolved_env_config())
+    """The config with `env_config` expanded to the env's full config, a user's walker file
+    pinned (`walker_xml` made absolute, its SHA-256 recorded) and the learning rate's decay length
+    made explicit (what config.yaml holds)."""
+    full = _pin_walker_file(config_lib.to_dict(config.resolved_env_config()))
     p = config.ppo
     if p.learning_rate_final is not None and p.learning_rate_decay_steps is None:
         p = dataclasses.replace(p, learning_rate_decay_steps=p.num_timesteps)
     return dataclasses.replace(config, env_config=full, ppo=p)
+
+
+def _pin_walker_file(env_config: dict[str, Any]) -> dict[str, Any]:
+    """`env_config` with its `walker_xml` (if any) absolute and `walker_xml_sha256` set."""
+    xml = env_config.get("walker_xml")
+    if not xml or "walker_xml_sha256" not in env_config:
+        return env_config
+    path = Path(xml).expanduser().absolute()
+    return {**env_config, "walker_xml": str(path), "walker_xml_sha256": file_sha256(path)}
 
 
 def read_config(run_dir: str | Path) -> TrainConfig:
@@ -401,77 +425,3 @@ def with_fields_added_since(values: dict[str, Any]) -> dict[str, Any]:
     fields = dataclasses.fields(type(registry.default_config(values["env"])))
     added = {f.name: f.default for f in fields if f.name not in env_config and isinstance(f.default, _PLAIN)}
     return {**values, "env_config": {**env_config, **config_lib.to_dict(added)}} if added else values
-
-
-SAFE_TO_CHANGE_ON_RESUME = ("ppo.num_timesteps", "log.", "env_config.threads")
-"""What a resumed run may change: its length, logging, and C physics' thread count (MuJoCo's
-batched stepping is bit-identical at any thread count)."""
-
-
-def resume_config(saved: TrainConfig, assignments: list[str] | None, flags: dict[str, Any] | None) -> TrainConfig:
-    """`saved` with `--set`/flag changes applied; only total steps, `log.*` and
-    `env_config.threads` may change. With a curriculum, a new total changes its last stage's steps.
-
-    Anything else (env, network, PPO hyperparameters, seed) would make the continued run a
-    different experiment, so it is refused with the list of offending keys.
-    """
-    values = config_lib.to_dict(saved)
-    for text in assignments or []:
-        values = config_lib.merge(values, config_lib.parse_assignment(text))
-    values = config_lib.merge(values, flags or {})
-    extended = _extend_last_stage(values, saved)
-    new = config_lib.from_dict(TrainConfig, values)
-    before, after = _flatten(config_lib.to_dict(saved)), _flatten(config_lib.to_dict(new))
-    changed = sorted(k for k in set(before) | set(after) if before.get(k) != after.get(k))
-    if extended:
-        changed = [k for k in changed if k != "curriculum"]  # the last stage follows --steps
-    unsafe = [k for k in changed if not k.startswith(SAFE_TO_CHANGE_ON_RESUME)]
-    if unsafe:
-        detail = ", ".join(f"{k}: {before.get(k)!r} -> {after.get(k)!r}" for k in unsafe)
-        raise VnlError(
-            f"cannot resume with a changed {detail}; a resumed run may only change ppo.num_timesteps "
-            "(--steps), log.* settings and env_config.threads. Start a new run for a different configuration."
-        )
-    return new
-
-
-def _extend_last_stage(values: dict[str, Any], saved: TrainConfig) -> bool:
-    """A resumed curriculum run with a new length (`--steps`) changes its last stage's steps by as
-    much, in `values` (a config dict), so that the stages still add up to the run's length.
-    Returns whether it did (not when the stages themselves were changed: that is refused)."""
-    stages, ppo = values.get("curriculum") or [], values.get("ppo")
-    total = ppo.get("num_timesteps") if isinstance(ppo, dict) else None
-    if not stages or not isinstance(total, int) or isinstance(total, bool):
-        return False  # no curriculum, or a malformed length that from_dict reports in one line
-    added = total - saved.ppo.num_timesteps
-    if not added or stages != config_lib.to_dict(saved)["curriculum"]:
-        return False
-    last = stages[-1]["steps"] + added
-    if last < 1:
-        raise VnlError(
-            f"--steps (ppo.num_timesteps) {total:,} ends before the curriculum's last stage starts "
-            f"(step {saved.ppo.num_timesteps - stages[-1]['steps']:,}); give more steps"
-        )
-    stages[-1] = {**stages[-1], "steps": last}
-    return True
-
-
-def task_variant(saved: TrainConfig, assignments: list[str]) -> TrainConfig:
-    """`saved` with `env_config.*` assignments (`--set KEY=VALUE` of `vnl eval`, `render` and
-    `record`): the trained policy on a variant of its task, e.g. without a training-only
-    termination or on longer gaps. `saved` is the config a checkpoint was trained with
-    (`vnl.train.worlds.trained_config`: a curriculum run's stage); any curriculum is dropped."""
-    values = {**config_lib.to_dict(saved), "curriculum": []}
-    for text in assignments:
-        values = config_lib.merge(values, config_lib.task_variant_assignment(text))
-    return config_lib.from_dict(TrainConfig, values)
-
-
-def _flatten(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for k, v in d.items():
-        if isinstance(v, dict) and v:
-            out.update(_flatten(v, f"{prefix}{k}."))
-        else:
-            out[f"{prefix}{k}"] = v
-    return out

@@ -3,9 +3,7 @@ back in order when a run resumes from a checkpoint."""
 
 from __future__ import annotations
 
-import os
 import shutil
-import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -13,9 +11,10 @@ from typing import Any
 import jax
 import numpy as np
 
+from vnl import durable
 from vnl import typed_config as config_lib
 from vnl.errors import VnlError
-from vnl.io import checkpoint
+from vnl.io import checkpoint, layout
 from vnl.io import metrics as metrics_io
 from vnl.tasks.contract import Env
 from vnl.train import recurrent
@@ -24,23 +23,35 @@ from vnl.train.config import TrainConfig, resolved
 Say = Callable[[str], None]
 
 
-def prepare_run_dir(run_dir: Path, config: TrainConfig) -> None:
-    """Creates `run_dir` and writes config.yaml; fails before any compile if it cannot.
-
-    A directory that already holds a run (metrics or checkpoints) is refused, so nothing already
-    written is overwritten.
-    """
+def create_run_dir(run_dir: Path) -> None:
+    """Creates the directory of a new run (so that its lock can be taken in it)."""
     run_dir = Path(run_dir)
-    if (run_dir / "metrics.jsonl").exists() or checkpoint.steps(run_dir):
-        raise VnlError(f"{run_dir} already holds a run; choose another --out directory (or --resume it)")
     if run_dir.exists() and not run_dir.is_dir():
         raise VnlError(f"--out {run_dir} is a file; give a directory for the run")
     try:
         run_dir.mkdir(parents=True, exist_ok=True)
-        probe = run_dir / ".write-test"
+    except OSError as e:
+        raise VnlError(f"cannot write to run directory {run_dir}: {e.strerror or e}") from None
+
+
+def prepare_run_dir(run_dir: Path, config: TrainConfig) -> None:
+    """Writes config.yaml into `run_dir` (created, and locked, by the caller); fails before any
+    compile if it cannot.
+
+    A directory that already holds any file of a run (`layout.RUN_FILES`: a config.yaml of the
+    user's, metrics, checkpoints, ...) is refused, so nothing already there is overwritten.
+    """
+    run_dir = Path(run_dir)
+    create_run_dir(run_dir)
+    found = layout.run_files_in(run_dir)
+    if found:
+        resume = " (or --resume it)" if layout.METRICS in found or layout.CHECKPOINTS in found else ""
+        raise VnlError(f"{run_dir} already holds a run ({', '.join(found)}); choose another --out directory{resume}")
+    try:
+        probe = durable.temporary_name(run_dir / "write-test")
         probe.write_bytes(b"x" * 65536)  # also catches a full disk
         probe.unlink()
-        config_lib.dump_yaml(resolved(config), str(run_dir / "config.yaml"))
+        config_lib.dump_yaml(resolved(config), str(run_dir / layout.CONFIG))
     except OSError as e:
         raise VnlError(f"cannot write to run directory {run_dir}: {e.strerror or e}") from None
 
@@ -63,7 +74,7 @@ def checkpoint_bytes(config: TrainConfig, env: Env) -> int:
 def check_disk_space(run_dir: Path, config: TrainConfig, env: Env) -> None:
     """Fails before compiling when the disk cannot hold the checkpoints the run will keep."""
     log = config.log
-    keep = log.keep_checkpoints + (log.keep_best is not None) if log.keep_checkpoints else config.ppo.num_evals
+    keep = log.keep_checkpoints + (log.keep_best is not None) + 1 if log.keep_checkpoints else config.ppo.num_evals
     need = (min(keep, config.ppo.num_evals) + 1) * checkpoint_bytes(config, env) + (64 << 20)
     free = shutil.disk_usage(run_dir).free
     if free < need:
@@ -77,7 +88,8 @@ def check_disk_space(run_dir: Path, config: TrainConfig, env: Env) -> None:
 def truncate_metrics(run_dir: Path, step: int, record: dict[str, Any] | None, say: Say) -> float:
     """Keeps the metrics.jsonl records up to `step` (taking that step's record from the checkpoint
     if the file lacks it), so the resumed run continues it without duplicates or gaps. A file with
-    later records is first copied to a timestamped backup. Returns the wall time at `step`.
+    later records is first copied to a timestamped backup (a new name, never one that exists).
+    Returns the wall time at `step`.
 
     A malformed line other than a torn last one is a `VnlError` (`metrics_io.read`): the file is
     then left as it is.
@@ -89,8 +101,9 @@ def truncate_metrics(run_dir: Path, step: int, record: dict[str, Any] | None, sa
     if at_step is not None:
         kept.append(at_step)
     if any(r.get("step", 0) > step for r in records):
-        backup = run_dir / f"metrics.jsonl.{time.strftime('%Y%m%d-%H%M%S')}.bak"
+        backup = durable.unique_path(run_dir, f"{layout.METRICS}.", ".bak")
         shutil.copyfile(path, backup)
+        durable.fsync_file(backup)
         say(f"[vnl] metrics after step {step:,} will be recomputed; the previous file is kept as {backup.name}")
     metrics_io.rewrite(path, kept)
     wall = at_step.get("wall_time") if at_step else None
@@ -98,12 +111,12 @@ def truncate_metrics(run_dir: Path, step: int, record: dict[str, Any] | None, sa
 
 
 def set_aside_later_checkpoints(run_dir: Path, step: int, say: Say) -> None:
-    """Moves the checkpoints after `step` to `checkpoints/superseded-<time>/` (nothing is deleted)."""
+    """Moves the checkpoints after `step` to `checkpoints/superseded-<time>/` (a new directory,
+    never one that exists; nothing is deleted)."""
     later = [s for s in checkpoint.steps(run_dir) if s > step]
     if not later:
         return
-    aside = checkpoint.checkpoint_dir(run_dir) / f"superseded-{time.strftime('%Y%m%d-%H%M%S')}"
-    aside.mkdir()
+    aside = durable.unique_path(checkpoint.checkpoint_dir(run_dir), "superseded-", make_dir=True)
     for s in later:
-        os.rename(checkpoint.step_dir(run_dir, s), aside / f"{s:012d}")
+        durable.rename(checkpoint.step_dir(run_dir, s), aside / f"{s:012d}")
     say(f"[vnl] checkpoints after step {step:,} moved to {aside}")

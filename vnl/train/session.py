@@ -3,7 +3,8 @@
 `Session(config, run_dir, restored, say).run(finish)` is what `vnl.train.trainer.train`/`resume` do
 once the run directory is ready. Each epoch: train (`PPOLoop.epoch`), evaluate, write the
 checkpoint (every `log.checkpoint_every` evaluations, and when stopping), append the metrics
-record, print the progress line.
+record, print the progress line. An epoch whose loss or parameters are not finite stops the run
+with `Diverged` before anything of it is evaluated or written (`vnl.train.divergence`).
 
 With several processes only process 0 evaluates and writes, and each of those steps goes through
 `distributed.on_lead`, so an error there (a full disk, a failing tracker) stops every process
@@ -14,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -21,11 +23,12 @@ from typing import Any
 
 import jax
 
+from vnl import durable, errors
 from vnl import typed_config as config_lib
-from vnl.errors import VnlError
-from vnl.io import checkpoint, tracking
+from vnl.errors import Diverged, VnlError
+from vnl.io import checkpoint, layout, tracking
 from vnl.tasks.contract import Env
-from vnl.train import curriculum, distributed, rundir, warm_start
+from vnl.train import curriculum, distributed, divergence, rundir, warm_start
 from vnl.train.config import TrainConfig
 from vnl.train.loop import LoopState
 from vnl.train.progress import make_record, progress_line, summary_line
@@ -120,8 +123,7 @@ class Session:
             if finish is not None and not interrupted:
                 distributed.on_lead(lambda: self._finish(finish, result.steps))
         finally:
-            if self.tracker is not None:
-                self.tracker.close()
+            self._close_tracker()
         distributed.on_lead(lambda: self._say_best(result.steps))
         if interrupted:
             self.say(
@@ -131,16 +133,31 @@ class Session:
         distributed.on_lead(lambda: self._summarize(result.wall_time))
         return result
 
+    def _close_tracker(self) -> None:
+        """Closes the trackers; a failure to close never hides the error that ended the run (if
+        one is being raised), and is one line otherwise."""
+        if self.tracker is None:
+            return
+        pending = sys.exc_info()[1]  # called from a `finally`: the error ending the run, if any
+        try:
+            self.tracker.close()
+        except Exception as e:  # noqa: BLE001 - reported, or dropped behind the first error
+            if pending is None:
+                raise self._write_error("the trackers' last records", e) from None
+
     def _summarize(self, wall_time: float) -> None:
         """Process 0: learning_curve.png of the whole run (across resumes) and its summary line."""
         from vnl.io import metrics as metrics_io
         from vnl.io import plot
 
-        records = metrics_io.read(self.run_dir / "metrics.jsonl")
+        records = metrics_io.read(self.run_dir / layout.METRICS)
         if not records:
             return
         config = self.config
-        plot.learning_curve(records, self.run_dir / "learning_curve.png", title=f"{config.env} ({config.preset})")
+        try:
+            plot.learning_curve(records, self.run_dir / layout.LEARNING_CURVE, title=f"{config.env} ({config.preset})")
+        except Exception as e:  # noqa: BLE001 - a storage error is one line; anything else re-raised
+            raise self._write_error(layout.LEARNING_CURVE, e) from None
         self.say(summary_line(records, config.init.run is not None, wall_time, resumed=self.restored is not None))
 
     def _say_best(self, last: int) -> None:
@@ -160,11 +177,13 @@ class Session:
         if restored:
             with self.stop.critical():
                 checkpoint.tidy(self.run_dir)
-                # Metrics first: a malformed metrics.jsonl stops the resume with the run untouched.
+                # Checkpoints first: killed before the metrics are cut, the next resume starts from
+                # the same step and cuts them then. (The other way round, it would start from a later
+                # checkpoint whose metrics were cut.) A malformed metrics.jsonl was refused before.
+                rundir.set_aside_later_checkpoints(self.run_dir, restored.step, self.say)
                 self.wall_offset = rundir.truncate_metrics(
                     self.run_dir, restored.step, restored.meta.get("record"), self.say
                 )
-                rundir.set_aside_later_checkpoints(self.run_dir, restored.step, self.say)
         wandb_id = restored.meta.get("wandb_id") if restored else None
         self.tracker = tracking.Tracker(
             self.run_dir, config.log, config_lib.to_dict(config), self.say, wandb_id=wandb_id
@@ -183,7 +202,7 @@ class Session:
                 f"max {stats['max']:.3f} over {config.ppo.num_envs} envs"
             )
         if loop.randomization and not restored:
-            (self.run_dir / "randomization.json").write_text(json.dumps(loop.randomization, indent=2) + "\n")
+            durable.write_atomic(self.run_dir / layout.RANDOMIZATION, json.dumps(loop.randomization, indent=2) + "\n")
         self.say("[vnl] compiling (on a CPU about a minute; seconds with a warm compilation cache)...")
 
     def _train(self) -> tuple[bool, LoopState]:
@@ -198,6 +217,10 @@ class Session:
         while step < total and not stopping:
             state, training_metrics = self.loop.epoch(state)
             step = self.loop.env_steps(state)
+            problem = divergence.find(state, training_metrics)
+            if problem is not None:  # every process sees the same parameters, so all stop here
+                good = checkpoint.steps(self.run_dir) if self.lead else []
+                raise Diverged(divergence.message(self.config, self.run_dir, step, problem, good))
             state, record = self._evaluate(state, training_metrics, step)
             stopping = distributed.any_process(self.stop.requested.is_set())
             self._save(step, state, record, force=stopping)
@@ -252,20 +275,26 @@ class Session:
             "wandb_id": tracker.wandb.id if tracker and tracker.wandb else None,
             # What the networks read, so a warm start checks a grown observation without building this env.
             "observation_layout": self.loop.observation_layout,
+            "versions": checkpoint.software_versions(),
         }
         try:
             with self.stop.critical():
                 params = self.loop.params(state)
                 log = self.config.log
                 checkpoint.save(self.run_dir, step, params, log.keep_checkpoints, arrays, meta, log.keep_best)
-        except OSError as e:
+        except Exception as e:  # noqa: BLE001 - a storage error is one line; anything else re-raised
             raise self._write_error(f"the checkpoint of step {step:,}", e) from None
 
-    def _write_error(self, what: str, e: OSError) -> VnlError:
-        """The error for a failed write (a full disk, a lost mount), naming what is intact."""
+    def _write_error(self, what: str, e: Exception) -> VnlError:
+        """The error for a failed write (a full disk, a lost mount, also when a library reports it
+        as another exception: orbax's `ValueError`), naming what is intact; `e` itself when it is
+        not a storage error (a bug keeps its traceback)."""
+        found = errors.storage_error(e)
+        if found is None:
+            raise e
         good = checkpoint.steps(self.run_dir)
         return VnlError(
-            f"could not write {what} in {self.run_dir}: {e.strerror or e}. "
+            f"could not write {what} in {self.run_dir}: {found.strerror or found}. "
             + (
                 f"The last good checkpoint (step {good[-1]:,}) and the metrics written so far are intact; free "
                 f"some space and continue with `vnl train --resume {self.run_dir}`."
@@ -282,7 +311,7 @@ class Session:
             try:
                 with self.stop.critical():
                     self.tracker.write(record)
-            except OSError as e:
+            except Exception as e:  # noqa: BLE001 - a storage error is one line; anything else re-raised
                 raise self._write_error(f"the metrics of step {record['step']:,}", e) from None
             self.records.append(record)
             if self.progress is not None:

@@ -11,20 +11,25 @@ stopped. The pieces, one concern per module:
 - `vnl.train.session`: the run in progress (evaluate, checkpoint, metrics, progress);
 - `vnl.train.worlds`: the run's envs (one per curriculum stage), each built once;
 - `vnl.train.signals`: Ctrl-C/SIGTERM stop at the next evaluation, never inside a write;
-- `vnl.train.distributed`: several processes, process 0 writing.
+- `vnl.train.distributed`: several processes, process 0 writing;
+- `vnl.io.runlock`: one writer per run directory (process 0 holds its lock for the session).
 """
 
 from __future__ import annotations
 
+import contextlib
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from vnl import typed_config as config_lib
-from vnl.io import checkpoint
+from vnl.errors import VnlError
+from vnl.io import checkpoint, runlock
 from vnl.io import metrics as metrics_io
 from vnl.train import distributed, loop, rundir, warm_start
-from vnl.train.config import TrainConfig, read_config, resume_config
+from vnl.train.config import TrainConfig, read_config
+from vnl.train.config_changes import resume_config
 from vnl.train.session import Finish, Progress, Restored, Session, TrainResult
 from vnl.train.worlds import Worlds
 
@@ -46,6 +51,8 @@ def train(
     with each metrics record (e.g. to move a notebook's progress bar). With `config.init.run`, the
     run starts from that run's networks (`vnl.train.warm_start`); its layout is checked before
     anything is written. Each world (each curriculum stage's env) is built once (`Worlds`).
+    Process 0 holds the run directory's lock (`runlock`) from before config.yaml is written to the
+    end; a directory another process writes is refused.
     """
     run_dir = Path(run_dir)
     loop.check_devices(config)
@@ -56,8 +63,11 @@ def train(
         parent = warm_start.load_parent(config)
         parent = warm_start.check_layout(parent, worlds.env(0), config.env)  # the env the parent starts in
         config = warm_start.recorded(config, parent)
-    distributed.on_lead(lambda: rundir.prepare_run_dir(run_dir, config))
-    return Session(config, run_dir, None, say, worlds, parent=parent, progress=progress).run(finish)
+    with contextlib.ExitStack() as lock:
+        distributed.on_lead(lambda: rundir.create_run_dir(run_dir))
+        distributed.on_lead(lambda: lock.enter_context(runlock.hold(run_dir)))
+        distributed.on_lead(lambda: rundir.prepare_run_dir(run_dir, config))
+        return Session(config, run_dir, None, say, worlds, parent=parent, progress=progress).run(finish)
 
 
 def _check_video_camera(config: TrainConfig, worlds: Worlds) -> None:
@@ -87,17 +97,55 @@ def resume(
     saved = read_config(run_dir)
     config = resume_config(saved, assignments, flags)
     loop.check_devices(config)
-    step, arrays, meta = checkpoint.load_train_state(run_dir, from_step)
+    seen = checkpoint.steps(run_dir)
+    step, arrays, meta = checkpoint.load_train_state(run_dir, from_step, required=RESUME_META)
     if (run_dir / "metrics.jsonl").exists():
         metrics_io.read(run_dir / "metrics.jsonl")  # a damaged file is an error now, not after compiling
     worlds = Worlds(config, say if distributed.is_lead() else None)
     _check_video_camera(config, worlds)
-    if config != saved:
-        distributed.on_lead(lambda: config_lib.dump_yaml(config, str(run_dir / "config.yaml")))
+    _warn_versions(meta, step)
+    with contextlib.ExitStack() as lock:  # taken after the checks above: a refused resume writes nothing
+        distributed.on_lead(lambda: lock.enter_context(runlock.hold(run_dir)))
+        distributed.on_lead(lambda: _check_unchanged(run_dir, seen))
+        if config != saved:
+            distributed.on_lead(lambda: config_lib.dump_yaml(config, str(run_dir / "config.yaml")))
+        _say_schedule(config, say)
+        restored = Restored(step, arrays, meta)
+        return Session(config, run_dir, restored, say, worlds, progress=progress).run(finish)
+
+
+RESUME_META = ("training_steps_per_epoch",)
+"""What a resumed run reads from its checkpoint's meta.json (`checkpoint.check_meta`)."""
+
+
+def _check_unchanged(run_dir: Path, seen: list[int]) -> None:
+    """The checkpoints are those read before the lock was taken (no other process wrote or
+    removed one in between)."""
+    if checkpoint.steps(run_dir) != seen:
+        raise VnlError(
+            f"{run_dir} changed while it was read (another process wrote a checkpoint); run the command again"
+        )
+
+
+def _warn_versions(meta: dict[str, Any], step: int) -> None:
+    """One warning when the checkpoint was written by other versions of vnl or its libraries."""
+    then = meta.get("versions")
+    if not isinstance(then, dict):
+        return
+    now = checkpoint.software_versions()
+    changed = [f"{k} {then[k]} -> {now.get(k, 'none')}" for k in sorted(then) if then[k] != now.get(k, then[k])]
+    if changed:
+        warnings.warn(
+            f"the checkpoint of step {step:,} was written with other versions ({', '.join(changed)}); the resumed "
+            "run may differ from one never stopped",
+            stacklevel=3,
+        )
+
+
+def _say_schedule(config: TrainConfig, say: Callable[[str], None]) -> None:
     p = config.ppo
     if p.learning_rate_final is not None and (p.learning_rate_decay_steps or p.num_timesteps) < p.num_timesteps:
         say(
             f"[vnl] the learning rate reaches ppo.learning_rate_final ({p.learning_rate_final:g}) at "
             f"{p.learning_rate_decay_steps:,} steps and stays there to {p.num_timesteps:,}"
         )
-    return Session(config, run_dir, Restored(step, arrays, meta), say, worlds, progress=progress).run(finish)

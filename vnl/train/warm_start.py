@@ -119,12 +119,19 @@ def parent_defaults(run_dir: str | Path) -> dict[str, Any]:
 
 def load_parent(config: TrainConfig) -> Parent:
     """Reads the checkpoint `config.init` names; `VnlError` when the run or step is missing or
-    unreadable, or when the parent's networks differ from `config`'s."""
+    unreadable, when the parent's config is not the one `init.config_hash` recorded (a config
+    copied from a warm-started run), or when the parent's networks differ from `config`'s."""
     init = config.init
     if init.run is None:
         raise VnlError("no parent run: set init.run (--init-from RUN_DIR)")
     run_dir = Path(init.run).absolute()
     parent_config = read_config(run_dir)
+    if init.config_hash is not None and init.config_hash != config_hash(parent_config):
+        raise VnlError(
+            f"init.config_hash is {init.config_hash}, but the config of {run_dir} now hashes to "
+            f"{config_hash(parent_config)}: it is not the parent this config was made with (changed since, or "
+            "another run of that name); drop init.config_hash to start from it as it is"
+        )
     step, arrays, meta = checkpoint.load_train_state(run_dir, init.step)
     arrays = {k: v for k, v in arrays.items() if k.startswith(".training.")}
     recorded_layout = meta.get("observation_layout")
@@ -282,6 +289,33 @@ def _widen(name: str, theirs: np.ndarray, parent: Parent) -> np.ndarray:
         return theirs
     grown[old] = theirs[rows[old]]
     return grown
+
+
+def check_lineage(run_dirs: list[str | Path]) -> None:
+    """Warns for each parent in the lineage of `run_dirs` (`vnl.io.plot.lineage`, what `vnl plot
+    --lineage` draws) whose config is not the one its child started from (its hash differs from
+    the child's `init.config_hash`): it was changed since, or the run found by its name next to
+    the child is another one. Parents whose config this vnl cannot read are not compared."""
+    import warnings
+
+    from vnl.io import plot
+
+    for run_dir in run_dirs:
+        chain = plot.lineage(run_dir)
+        for (parent, _), (child, _) in zip(chain, chain[1:], strict=False):
+            init = config_lib.load_yaml(str(child / "config.yaml"), "config.yaml of the run").get("init") or {}
+            recorded = init.get("config_hash")
+            try:
+                actual = config_hash(read_config(parent))
+            except VnlError:
+                continue
+            if recorded and actual != recorded:
+                warnings.warn(
+                    f"{parent} is drawn as the parent of {child}, but its config (hash {actual}) is not the one "
+                    f"{child.name} started from (hash {recorded}): it was changed since, or it is another run of "
+                    "that name",
+                    stacklevel=2,
+                )
 
 
 def planned(config: TrainConfig) -> TrainConfig:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+import hashlib
 from pathlib import Path
 
 from dm_control import mjcf
@@ -46,3 +48,14 @@ def build(xml_path: str, root_body: str, self_collision: bool = False) -> Walker
         pass  # the file already has cameras named side/back
     name = Path(path).stem
     return Walker(name=name, mjcf_model=model, root_body=root_body)
+
+
+def file_sha256(path: str | Path) -> str:
+    """The SHA-256 of a file's bytes (hex), cached while its size and modification time stay."""
+    st = Path(path).stat()
+    return _sha256(str(Path(path).absolute()), st.st_size, st.st_mtime_ns)
+
+
+@functools.lru_cache(maxsize=32)
+def _sha256(path: str, size: int, mtime_ns: int) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()

@@ -1,0 +1,128 @@
+"""Writes that survive a crash or a power cut: data on disk before its name points at it.
+
+A rename makes a new file visible under its final name in one step, but only once the file's
+data and the directory entry are on disk: `write_atomic` writes a uniquely named temporary file
+in the target's directory (created exclusively, so two writers never share one), fsyncs it,
+renames it over the target and fsyncs the directory. `replace` and `rename` are `os.replace` /
+`os.rename` followed by an fsync of the directories involved. Imports nothing heavy.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import os
+import secrets
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+Writer = Callable[[Path], None]
+"""`writer(tmp_path)`: writes the whole file at `tmp_path` (e.g. `fig.savefig`, `ds.to_netcdf`)."""
+
+
+def fsync_dir(path: str | Path) -> None:
+    """Makes the entries of directory `path` (files created, renamed or removed in it) durable.
+    File systems that cannot fsync a directory (EINVAL, ENOTSUP) are left as they are."""
+    fd = os.open(path, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+    try:
+        os.fsync(fd)
+    except OSError as e:
+        if e.errno not in (errno.EINVAL, errno.ENOTSUP, errno.EBADF):
+            raise
+    finally:
+        os.close(fd)
+
+
+def fsync_file(path: str | Path) -> None:
+    fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def fsync_tree(root: str | Path) -> None:
+    """fsyncs every file and directory under `root` (deepest first) and `root` itself: what a
+    library wrote without fsyncing (orbax's files) is on disk before `root` is renamed into place."""
+    for dirpath, _, filenames in os.walk(root, topdown=False):
+        for name in filenames:
+            path = os.path.join(dirpath, name)
+            if not os.path.islink(path):
+                fsync_file(path)
+        fsync_dir(dirpath)
+
+
+def _parents(*paths: str | Path) -> list[Path]:
+    return list(dict.fromkeys(Path(os.path.abspath(p)).parent for p in paths))
+
+
+def rename(src: str | Path, dst: str | Path) -> None:
+    """`os.rename(src, dst)`, then the directories of both fsynced."""
+    os.rename(src, dst)
+    for parent in _parents(src, dst):
+        fsync_dir(parent)
+
+
+def replace(src: str | Path, dst: str | Path) -> None:
+    """`os.replace(src, dst)`, then the directories of both fsynced."""
+    os.replace(src, dst)
+    for parent in _parents(src, dst):
+        fsync_dir(parent)
+
+
+def temporary_name(path: str | Path) -> Path:
+    """A name beside `path` no other writer uses: `.<stem>.tmp-<pid>-<random><suffix>` (the
+    suffix kept, for writers that take the format from it)."""
+    path = Path(path)
+    return path.with_name(f".{path.stem}.tmp-{os.getpid()}-{secrets.token_hex(4)}{path.suffix}")
+
+
+def write_atomic(path: str | Path, data: bytes | str | None = None, writer: Writer | None = None) -> Path:
+    """Writes `data` (or whatever `writer(tmp)` writes) to `path` so that `path` holds either
+    its old content or the whole new one, also after a crash. A symlink at `path` is followed
+    (its target is replaced). Returns `path`."""
+    if (data is None) == (writer is None):
+        raise TypeError("write_atomic takes data or a writer, not both")
+    path = Path(path)
+    if path.is_symlink():
+        path = Path(os.path.realpath(path))
+    tmp = temporary_name(path)
+    try:
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o644)
+        if data is not None:
+            with os.fdopen(fd, "wb") as f:
+                f.write(data.encode() if isinstance(data, str) else data)
+                f.flush()
+                os.fsync(f.fileno())
+        else:
+            os.close(fd)
+            assert writer is not None
+            writer(tmp)
+            fsync_file(tmp)
+        replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+    return path
+
+
+def unique_path(directory: str | Path, prefix: str, suffix: str = "", make_dir: bool = False) -> Path:
+    """A new file (or with `make_dir` a directory) in `directory` named `<prefix><time><suffix>`
+    (time as 20261127-093000), with `-2`, `-3`, ... after the time when that exists: created
+    exclusively, so two calls in the same second (or two processes) never get the same one."""
+    directory = Path(directory)
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    for n in range(1, 10_000):
+        candidate = directory / f"{prefix}{stamp}{'' if n == 1 else f'-{n}'}{suffix}"
+        try:
+            if make_dir:
+                candidate.mkdir()
+            else:
+                os.close(os.open(candidate, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o644))
+        except FileExistsError:
+            continue
+        fsync_dir(directory)
+        return candidate
+    raise FileExistsError(errno.EEXIST, f"no free name for {prefix}{stamp}{suffix} in {directory}")
