@@ -53,7 +53,8 @@ def card(entry: dict[str, Any]) -> str:
         f"![{env}, the `{entry['preset']}` preset's trained policy (seed {next(iter(seeds))}), mid-episode]"
         f"(../{entry['frame']})",
         "",
-        f"Preset `{entry['preset']}`, seeds {', '.join(seeds)}; measured {entry['date']} on {entry['machine']} "
+        f"Preset `{entry['preset']}`, seed{'s' if len(seeds) > 1 else ''} {', '.join(seeds)}; "
+        f"measured {entry['date']} on {entry['machine']} "
         f"(vnl {entry['vnl_commit']}; running alongside: {entry['alongside']}). "
         f"The environment: [reference](../reference/envs/{env}.md).",
         "",
@@ -92,7 +93,8 @@ def card(entry: dict[str, Any]) -> str:
 
 def pending_card(env: str) -> str:
     """The card of an env in ORDER that results.json has no entry for yet: how to measure it."""
-    command = f".venv/bin/python benchmarks/learning.py --out runs/learning --envs {env} --results {RESULTS.relative_to(ROOT)}"
+    results = RESULTS.relative_to(ROOT)
+    command = f".venv/bin/python benchmarks/learning.py --out runs/learning --envs {env} --results {results}"
     return "\n".join([
         f"# {env}",
         "",
