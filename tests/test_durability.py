@@ -19,9 +19,9 @@ import sys
 import warnings
 from pathlib import Path
 
-import numpy as np
 import pytest
 from fsutil import fill, tmpfs
+from resumecheck import assert_same_as_reference
 
 from vnl.io import checkpoint
 from vnl.io import metrics as metrics_io
@@ -210,18 +210,7 @@ def reference(launcher, tmp_path_factory):
 
 
 def _same_as_reference(run: Path, reference: Path) -> None:
-    records = metrics_io.read(run / "metrics.jsonl")
-    expected = metrics_io.read(reference / "metrics.jsonl")
-    assert [r["step"] for r in records] == list(range(0, TOTAL + 1, EPOCH))  # unique, in order, complete
-    for got, want in zip(records, expected, strict=True):
-        for key in want:
-            if key.startswith(("eval/episode", "training/")) and "sps" not in key and "walltime" not in key:
-                assert got[key] == want[key], (got["step"], key, got[key], want[key])
-    _, final, _ = checkpoint.load_train_state(run)
-    _, want, _ = checkpoint.load_train_state(reference)
-    assert final.keys() == want.keys()
-    for key in want:
-        np.testing.assert_array_equal(final[key], want[key], err_msg=key)
+    assert_same_as_reference(run, reference, TOTAL, EPOCH)
 
 
 def _check_resumable(run: Path) -> int:
