@@ -181,16 +181,18 @@ class PPOLoop:
 
     def _loss_fn(self) -> Any:
         """Brax's PPO loss with the run's hyperparameters: loss(params, normalizer, data, key)."""
+        return functools.partial(ppo_losses.compute_ppo_loss, ppo_network=self.network, **self._loss_settings())
+
+    def _loss_settings(self) -> dict[str, float]:
+        """The PPO loss's hyperparameters from the config (the feed-forward and recurrent losses')."""
         p = self.config.ppo
-        return functools.partial(
-            ppo_losses.compute_ppo_loss,
-            ppo_network=self.network,
-            entropy_cost=p.entropy_cost,
-            discounting=p.discounting,
-            reward_scaling=p.reward_scaling,
-            gae_lambda=p.gae_lambda,
-            clipping_epsilon=p.clipping_epsilon,
-        )
+        return {
+            "entropy_cost": p.entropy_cost,
+            "discounting": p.discounting,
+            "reward_scaling": p.reward_scaling,
+            "gae_lambda": p.gae_lambda,
+            "clipping_epsilon": p.clipping_epsilon,
+        }
 
     def _make_evaluator(self, eval_env: Any) -> Any:
         """Brax's `Evaluator` of the policy on `num_eval_envs` episodes of `eval_env`."""

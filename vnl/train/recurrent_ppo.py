@@ -214,16 +214,7 @@ class RecurrentPPOLoop(PPOLoop):
         return make_recurrent_networks(self.config, env)
 
     def _loss_fn(self) -> Any:
-        p = self.config.ppo
-        return functools.partial(
-            recurrent_ppo_loss,
-            networks=self.network,
-            entropy_cost=p.entropy_cost,
-            discounting=p.discounting,
-            reward_scaling=p.reward_scaling,
-            gae_lambda=p.gae_lambda,
-            clipping_epsilon=p.clipping_epsilon,
-        )
+        return functools.partial(recurrent_ppo_loss, networks=self.network, **self._loss_settings())
 
     def _make_evaluator(self, eval_env: Any) -> RecurrentEvaluator:
         p = self.config.ppo
