@@ -121,6 +121,22 @@ def test_an_env_not_yet_measured_gets_a_card_saying_so_with_the_command(tmp_path
     assert "| humanoid_run | not measured yet |" in results.expect_table({})
 
 
+def test_a_card_links_the_experiment_pages_that_name_its_env(tmp_path):
+    """A card whose numbers need explaining (the rat never leaves the bowl) leads to the research."""
+    docs = tmp_path / "docs"
+    (docs / "results").mkdir(parents=True)
+    (docs / "experiments").mkdir()
+    (docs / "experiments" / "bowl.md").write_text("# Can the rat climb out?\n\n`rodent_escape_bowl` stalls.\n")
+    corridor = "# The corridor\n\nrodent_run_gaps, see ../results/rodent_run.md\n"
+    (docs / "experiments" / "corridor.md").write_text(corridor)
+    (docs / "experiments" / "index.md").write_text("# Experiments\n\nrodent_escape_bowl rodent_run\n")
+    pages = results.pages(docs)
+    assert "- [Can the rat climb out?](../experiments/bowl.md)" in pages["results/rodent_escape_bowl.md"]
+    assert "- [The corridor](../experiments/corridor.md)" in pages["results/rodent_run_gaps.md"]
+    assert "experiments/" not in pages["results/rodent_run.md"]  # a longer env's name or a link is no mention
+    assert "experiments/" not in pages["results/ant_run.md"]
+
+
 def test_the_shipped_results_have_their_frames_and_the_readme_table_is_theirs():
     data = results.load()
     for env, entry in data.items():

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import io
 import json
+import re
 import statistics
 import sys
 from pathlib import Path
@@ -44,8 +45,31 @@ def _minutes(entry: dict[str, Any]) -> list[float]:
     return [seed["minutes"] for seed in entry["seeds"].values()]
 
 
-def card(entry: dict[str, Any]) -> str:
-    """One env's result card (Markdown; its images beside it in results/)."""
+def experiments(docs: Path, env: str) -> list[str]:
+    """Markdown links (from results/) to the experiment pages that name `env` as a whole word
+    (`rodent_run` does not match `rodent_run_gaps`): what was tried on it, and why a card reads as
+    it does (e.g. a rat that never leaves the bowl)."""
+    found = []
+    for page in sorted((docs / "experiments").glob("*.md")):
+        text = page.read_text()
+        if page.name != "index.md" and re.search(rf"(?<![\w/]){re.escape(env)}(?!\w)", text):
+            title = text.splitlines()[0].lstrip("# ").strip() if text.strip() else page.stem
+            found.append(f"[{title}](../experiments/{page.name})")
+    return found
+
+
+def research(links: list[str]) -> list[str]:
+    """A card's lines listing the experiment pages about its env (none: no lines)."""
+    return (
+        ["What was tried on this env, and why it reads as it does:", "", *(f"- {x}" for x in links), ""]
+        if links
+        else []
+    )
+
+
+def card(entry: dict[str, Any], notes: list[str] | None = None) -> str:
+    """One env's result card (Markdown; its images beside it in results/); `notes`: links to the
+    experiment pages about the env (`experiments`)."""
     env, seeds = entry["env"], entry["seeds"]
     out = [
         f"# {env}",
@@ -87,11 +111,12 @@ def card(entry: dict[str, Any]) -> str:
         entry["command"],
         "```",
         "",
+        *research(notes or []),
     ]
     return "\n".join(out)
 
 
-def pending_card(env: str) -> str:
+def pending_card(env: str, notes: list[str] | None = None) -> str:
     """The card of an env in ORDER that results.json has no entry for yet: how to measure it."""
     results = RESULTS.relative_to(ROOT)
     command = f".venv/bin/python benchmarks/learning.py --out runs/learning --envs {env} --results {results}"
@@ -105,6 +130,7 @@ def pending_card(env: str) -> str:
         command,
         "```",
         "",
+        *research(notes or []),
     ])  # fmt: skip
 
 
@@ -171,10 +197,11 @@ def pages(docs: Path) -> dict[str, str | bytes]:
     data = load(docs / "results" / "results.json")
     out: dict[str, str | bytes] = {"results/index.md": overview(data)}
     for env in ordered(data):
+        notes = experiments(docs, env)
         if env not in data:
-            out[f"results/{env}.md"] = pending_card(env)
+            out[f"results/{env}.md"] = pending_card(env, notes)
             continue
-        out[f"results/{env}.md"] = card(data[env])
+        out[f"results/{env}.md"] = card(data[env], notes)
         out[f"results/{env}_curves.png"] = curves_png(data[env])
     return out
 
