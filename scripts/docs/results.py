@@ -45,17 +45,21 @@ def _minutes(entry: dict[str, Any]) -> list[float]:
     return [seed["minutes"] for seed in entry["seeds"].values()]
 
 
-def experiments(docs: Path, env: str) -> list[str]:
-    """Markdown links (from results/) to the experiment pages that name `env` as a whole word
-    (`rodent_run` does not match `rodent_run_gaps`): what was tried on it, and why a card reads as
-    it does (e.g. a rat that never leaves the bowl)."""
-    found = []
-    for page in sorted((docs / "experiments").glob("*.md")):
-        text = page.read_text()
-        if page.name != "index.md" and re.search(rf"(?<![\w/]){re.escape(env)}(?!\w)", text):
-            title = text.splitlines()[0].lstrip("# ").strip() if text.strip() else page.stem
-            found.append(f"[{title}](../experiments/{page.name})")
-    return found
+def experiments(pages: dict[str, str], env: str) -> list[str]:
+    """Markdown links (from results/) to the experiment pages (file name -> text, `read_experiments`)
+    that name `env` as a whole word (`rodent_run` does not match `rodent_run_gaps`): what was tried
+    on it, and why a card reads as it does (e.g. a rat that never leaves the bowl)."""
+    pattern = re.compile(rf"(?<![\w/]){re.escape(env)}(?!\w)")
+    return [
+        f"[{text.splitlines()[0].lstrip('# ').strip()}](../experiments/{name})"
+        for name, text in pages.items()
+        if pattern.search(text)
+    ]
+
+
+def read_experiments(docs: Path) -> dict[str, str]:
+    """docs/experiments/*.md but its index: file name -> text, sorted by name."""
+    return {p.name: p.read_text() for p in sorted((docs / "experiments").glob("*.md")) if p.name != "index.md"}
 
 
 def research(links: list[str]) -> list[str]:
@@ -196,8 +200,9 @@ def pages(docs: Path) -> dict[str, str | bytes]:
     """Site path -> content: results/index.md, results/<env>.md and results/<env>_curves.png."""
     data = load(docs / "results" / "results.json")
     out: dict[str, str | bytes] = {"results/index.md": overview(data)}
+    research_pages = read_experiments(docs)
     for env in ordered(data):
-        notes = experiments(docs, env)
+        notes = experiments(research_pages, env)
         if env not in data:
             out[f"results/{env}.md"] = pending_card(env, notes)
             continue
