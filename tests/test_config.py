@@ -99,10 +99,13 @@ def test_every_env_builds_with_every_preset(env):
         assert cfg.preset == preset
 
 
-def test_humanoid_gpu_preset_keeps_the_cpu_presets_task_and_clipping_at_the_gpu_scale():
+def test_humanoid_presets_train_the_envs_reshaped_rewards_with_clipping_at_their_scales():
     cpu, gpu = train_config.build("humanoid_run", "cpu"), train_config.build("humanoid_run", "gpu")
+    task = registry.env_config("humanoid_run")
+    assert (task.healthy_reward, task.healthy_min_upright, task.forward_velocity_cap) == (2.0, 0.7, 1.0)
     for key in ("healthy_reward", "healthy_min_upright", "forward_velocity_cap"):
-        assert gpu.env_config[key] == cpu.env_config[key] != getattr(registry.env_config("humanoid_run"), key)
+        assert getattr(gpu.resolved_env_config(), key) == getattr(cpu.resolved_env_config(), key) == getattr(task, key)
+        assert getattr(registry.env_config("brax_humanoid_run"), key) != getattr(task, key)  # Brax's own rewards
     assert gpu.ppo.max_grad_norm == cpu.ppo.max_grad_norm == 1.0
     assert gpu.ppo.num_envs == presets.generic("gpu")["ppo"]["num_envs"] > cpu.ppo.num_envs
     assert gpu.env_config.get("impl", "mjx") == "mjx" and cpu.env_config["impl"] == "c"
@@ -186,7 +189,9 @@ def test_a_run_saved_before_an_env_field_existed_reads_back_with_the_field_off(t
 
 RESOLVED = yaml.safe_load((Path(__file__).parent / "data" / "resolved_presets.yaml").read_text())
 """Every env x preset resolved before the presets moved from the env registry to
-vnl/train/presets/ (2026-11-26): the move changed no preset, and a later edit of a preset shows here."""
+vnl/train/presets/ (2026-11-26): the move changed no preset, and a later edit of a preset shows here.
+2026-11-27: the task rules that cpu presets set moved into the envs' defaults (an env name is one
+task): no cpu row changed; gpu and tiny rows gained the rules and cameras the cpu rows had."""
 
 
 @pytest.mark.parametrize("name", sorted(RESOLVED))
@@ -216,7 +221,12 @@ def test_print_config_is_what_config_yaml_holds(tmp_path, capsys):
 
 def test_the_env_registry_holds_no_training_settings():
     """name -> factory, default env config, description; presets live in vnl/train/presets/."""
-    assert [f.name for f in dataclasses.fields(registry.Entry)] == ["factory", "default_config", "description"]
+    assert [f.name for f in dataclasses.fields(registry.Entry)] == [
+        "factory",
+        "default_config",
+        "description",
+        "vision",
+    ]
     source = Path(registry.__file__).read_text()
     assert "ppo" not in source and "network" not in source
     for path in presets.DIRECTORY.glob("*.yaml"):  # every preset file loads and names only presets

@@ -15,6 +15,7 @@ sys.path.insert(0, str(ROOT / "scripts" / "docs"))
 import reference  # noqa: E402  (scripts/docs/reference.py)
 import results  # noqa: E402  (scripts/docs/results.py)
 
+import vnl  # noqa: E402
 from vnl.cli import build_parser  # noqa: E402
 
 
@@ -57,17 +58,16 @@ def test_every_config_key_is_in_the_config_reference():
 
 
 @pytest.mark.slow
-def test_one_page_per_registered_env_with_its_observation_size_per_preset():
-    """Builds each env (C physics) for its presets: the page states each preset's observation size."""
+def test_one_page_per_registered_env_with_one_observation_size():
+    """Builds each env (C physics) for every preset: the page states one observation size, the
+    size `vnl.make` gives, and the camera `--vision` adds."""
     from vnl.envs import registry
-    from vnl.train import presets
 
     for name in registry.names():
         page = reference.env_markdown(name)
-        sizes = re.findall(r"\*\*Presets (.*?): observation size (\d+)\.\*\*", page)
-        covered = {p.strip("`") for group, _ in sizes for p in group.split(", ")}
-        assert covered == set(presets.names()), (name, sizes)
-        assert "## env_config keys and defaults" in page and "reward terms" in page
+        sizes = re.findall(r"\*\*Observation size (\d+)\*\*, the same under every preset", page)
+        assert sizes == [str(vnl.make(name, impl="c").observation_size)], (name, sizes)
+        assert "## env_config keys and defaults" in page and "reward terms" in page and "With `--vision`" in page
 
 
 def test_result_cards_come_from_the_results_file(tmp_path):

@@ -212,7 +212,8 @@ def test_reward_terms_match_independent_recomputation(name, impl):
     up = traj.data["xmat"][:, :, root, 2, 2]
     healthy = (z >= cfg.healthy_z_range[0]) & (z <= cfg.healthy_z_range[1]) & (up >= cfg.healthy_min_upright)
     a = np.clip(actions, m.actuator_ctrlrange[:, 0], m.actuator_ctrlrange[:, 1])
-    np.testing.assert_allclose(traj.metrics["reward/forward"], cfg.forward_reward_weight * vx, rtol=1e-4, atol=1e-4)
+    paid = vx if cfg.forward_velocity_cap is None else np.minimum(vx, cfg.forward_velocity_cap)  # humanoid_run's cap
+    np.testing.assert_allclose(traj.metrics["reward/forward"], cfg.forward_reward_weight * paid, rtol=1e-4, atol=1e-4)
     np.testing.assert_allclose(traj.metrics["reward/healthy"], cfg.healthy_reward * healthy)
     np.testing.assert_allclose(traj.metrics["reward/ctrl_cost"], -cfg.ctrl_cost_weight * (a**2).sum(-1), rtol=1e-5)
     total = sum(traj.metrics[f"reward/{k}"] for k in ("forward", "healthy", "ctrl_cost"))
@@ -338,11 +339,19 @@ def test_run_gaps_reward_equals_dm_control_formula(name, impl):
             d = _mj_data(e, traj, t, b)
             vx = d.subtree_linvel[e.root_body_id, 0]
             expected = dmc_rewards.tolerance(vx, (v, v), margin=v, sigmoid="linear", value_at_margin=0.0)
+            # dm_control's termination, an end effector below terminate_at_height, and vnl's additions
+            # where the env sets them (the root low, tilted past healthy_min_upright, a foot in a gap).
+            c = e.config
+            low = d.xpos[e._low_bodies, 2].min() < c.terminate_at_height
+            root_low = c.terminate_root_below is not None and d.xpos[e.root_body_id, 2] < c.terminate_root_below
+            tilted = c.healthy_min_upright is not None and d.xmat[e.root_body_id][-1] < c.healthy_min_upright
+            foot = traj.metrics.get("measure/ended_foot_in_gap", np.zeros_like(traj.reward))[t, b]
+            fell = float(low or root_low or tilted or foot)
+            assert traj.metrics["fell"][t, b] == fell, (t, b, low, root_low, tilted, foot)
+            assert traj.done[t, b] == max(fell, traj.metrics["physics_nan"][t, b])
+            # The reward: dm_control's velocity term, plus vnl's healthy bonus while not failed.
+            expected += c.healthy_reward * (1.0 - fell)
             assert traj.reward[t, b] == pytest.approx(float(expected), abs=2e-3), (t, b, vx)
-            # Termination: an end effector below terminate_at_height.
-            low = d.xpos[e._low_bodies, 2].min() < e.config.terminate_at_height
-            assert traj.metrics["fell"][t, b] == float(low)
-            assert traj.done[t, b] == max(float(low), traj.metrics["physics_nan"][t, b])
 
 
 @pytest.mark.slow
@@ -517,7 +526,7 @@ def test_run_gaps_tilt_check_and_healthy_bonus():
     without the check), and `healthy_reward` is paid on every step that does not fail, on top of
     dm_control's velocity term (MuJoCo C)."""
     strict = vnl.make("rodent_run_gaps", impl="c", healthy_min_upright=0.7071, healthy_reward=0.2)
-    loose = vnl.make("rodent_run_gaps", impl="c")
+    loose = vnl.make("rodent_run_gaps", impl="c", healthy_min_upright=None)  # dm_control's: no tilt check
     m = strict.mj_model
     state = strict.reset(jax.random.PRNGKey(0))
     failed = {}
@@ -720,7 +729,7 @@ def test_the_ant_observes_the_corridors_direction_and_its_offset_from_the_centre
     (0, -1, 0) and 0.5. The rat's corridor (dm_control's observation) does not have them."""
     env = vnl.make("ant_run_gaps", impl="c")
     assert env.observation_layout()[-1] == ("corridor", 4)
-    assert "corridor" not in dict(vnl.make("rodent_run_gaps", impl="c").observation_layout())
+    assert "corridor" not in dict(vnl.make("rodent_run_gaps", impl="c", observe_corridor=False).observation_layout())
     state = jax.jit(env.reset)(jax.random.PRNGKey(0))
     assert np.allclose(state.obs[-4:-1], [1.0, 0.0, 0.0], atol=0.05) and abs(float(state.obs[-1])) < 0.01
     i = env._free_qpos

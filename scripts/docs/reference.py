@@ -210,7 +210,7 @@ def _layout_table(layout: list[tuple[str, int]]) -> list[str]:
 
 
 def env_markdown(name: str) -> str:
-    """One registered env: what it is, its config keys and defaults, observation per preset,
+    """One registered env: what it is, its config keys and defaults, its observation (one, under every preset),
     reward terms, task measures, cameras and presets (generated from the registry and the built env)."""
     import jax
     import jax.numpy as jp
@@ -225,17 +225,24 @@ def env_markdown(name: str) -> str:
     if name in registry.ALIASES:
         alias = registry.ALIASES[name]
         out += [f"Its defaults are those of [{alias}]({alias}.md), for any walker.", ""]
-    out += ["## Observation, per preset", ""]
-    layouts: dict[str, list[str]] = {}
-    env = None
-    for preset in presets.names():
-        layout, env = _built(name, preset)
-        layouts.setdefault(repr(layout), []).append(preset)
-    for key, names in layouts.items():
-        layout = ast.literal_eval(key)
-        size = sum(w for _, w in layout)
-        which = ", ".join(f"`{p}`" for p in names)
-        out += [f"**Presets {which}: observation size {size}.**", "", *_layout_table(layout), ""]
+    layouts = {preset: _built(name, preset) for preset in presets.names()}
+    distinct = {repr(layout) for layout, _ in layouts.values()}
+    if len(distinct) != 1:  # an env name is one task: tests/test_presets.py keeps it so
+        raise ValueError(f"{name}: the presets train different observations: {sorted(distinct)}")
+    layout, env = layouts["cpu"]
+    size = sum(w for _, w in layout)
+    out += [
+        "## Observation",
+        "",
+        f"**Observation size {size}**, the same under every preset (`{'`, `'.join(presets.names())}`) and in "
+        f"`vnl.make({name!r})`: presets choose compute, never the task.",
+        "",
+        *_layout_table(layout),
+        "",
+    ]
+    camera = registry.vision_defaults(name)
+    settings = ", ".join(f"`{k}: {v}`" for k, v in camera.items()) or "the defaults (the egocentric camera, 64x64 RGB)"
+    out += [f"With `--vision` (or `vnl.make({name!r}, vision=True)`) the policy also sees a camera: {settings}.", ""]
     state = jax.eval_shape(env.reset, jax.ShapeDtypeStruct((2,), jp.uint32))
     rewards = sorted(k.removeprefix("reward/") for k in state.metrics if k.startswith("reward/"))
     measures = sorted(k.removeprefix("measure/") for k in state.metrics if k.startswith("measure/"))
@@ -292,9 +299,10 @@ def envs_index(names: list[str]) -> str:
         "# Environments",
         "",
         "Every registered env (`vnl list`), generated from the registry when the site is built. Each page",
-        "gives the observation per preset, the reward terms, task measures, cameras, config keys and presets.",
+        "gives its observation (the same under every preset), the reward terms, task measures, cameras, config",
+        "keys and presets.",
         "",
-        "| env | observation (`cpu` preset) | actions | what it is |",
+        "| env | observation | actions | what it is |",
         "|---|---:|---:|---|",
     ]
     for name in names:

@@ -1,11 +1,14 @@
-"""Name -> (env factory, default config, description). `make` validates overrides before compiling.
+"""Name -> (env factory, default config, description, camera). `make` validates overrides before compiling.
 
-Training presets live beside training, in `vnl/train/presets/`."""
+An env name is one task: its default config holds every rule (what the animal observes, is paid
+for and is stopped by) and its camera settings, the same under every training preset and in
+`make`. Training presets (`vnl/train/presets/`) choose compute, budgets and curricula only; the
+env config keys a preset may set are `COMPUTE_FIELDS`."""
 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any
 
 from vnl import typed_config as config_lib
@@ -14,12 +17,27 @@ from vnl.tasks import cue_memory, escape_bowl, find_target, run, run_gaps
 from vnl.tasks.contract import Env
 from vnl.vision.env import VisionConfig, VisionEnv
 
+COMPUTE_FIELDS = frozenset({"impl", "threads"})
+"""Env config keys that choose how the physics is computed (MuJoCo C, MJX or Warp; threads), not
+the task: the only `env_config` keys a training preset may set."""
+
+VISION_COMPUTE_FIELDS = frozenset({"enabled", "chunk"})
+"""Camera settings a preset may set: none of what the camera shows (`enabled` is `--vision`'s)."""
+
 
 @dataclasses.dataclass(frozen=True)
 class Entry:
+    """A registered env: `factory(config) -> Env`, its frozen default config, one line saying what
+    the task is, and `vision`, the env's camera settings for `--vision` / `make(name, vision=True)`
+    (`VisionConfig` fields; empty: its defaults, the egocentric 64x64 RGB camera)."""
+
     factory: Callable[[Any], Env]
     default_config: Any
     description: str
+    vision: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "vision", config_lib.freeze(dict(self.vision)))  # no shared mutable dict
 
 
 _BRAX = "physics selectable: MJX or Brax's generalized/positional/spring"
@@ -45,6 +63,9 @@ _REGISTRY: dict[str, Entry] = {
         run_gaps.RunGaps,
         run_gaps.ANT_RUN_GAPS,
         "The ant runs through a corridor of platforms and gaps scaled to its size.",
+        # A 16x16 depth image of the floor ahead: the default 64x64 RGB did not finish 5 training
+        # steps in 30 minutes on a CPU: docs/experiments/vision-gaps.md
+        vision={"camera": "walker/ground", "mode": "depth", "width": 16, "height": 16, "depth_max": 4.0},
     ),
     "ant_escape_bowl": Entry(
         escape_bowl.EscapeBowl, escape_bowl.ANT_ESCAPE_BOWL, "The ant climbs out of the bumpy bowl."
@@ -53,6 +74,7 @@ _REGISTRY: dict[str, Entry] = {
         find_target.FindTarget,
         find_target.FIND_TARGET,
         "A ball rolls to a red target placed at random; only its egocentric camera can see it (train with --vision).",
+        vision={"width": 32, "height": 32},  # 32x32 trains from pixels on a CPU: docs/experiments/vision-gaps.md
     ),
     "cue_memory": Entry(
         cue_memory.CueMemory,
@@ -73,8 +95,15 @@ ALIASES = {"run": "rodent_run", "run_gaps": "rodent_run_gaps", "escape_bowl": "r
 """Generic task names whose defaults equal a walker-specific env's (tests build each once)."""
 
 
-def register(name: str, factory: Callable[[Any], Env], default_config: Any, description: str = "") -> None:
-    """Adds an environment: `factory(config) -> Env` and its frozen default config dataclass.
+def register(
+    name: str,
+    factory: Callable[[Any], Env],
+    default_config: Any,
+    description: str = "",
+    vision: Mapping[str, Any] | None = None,
+) -> None:
+    """Adds an environment: `factory(config) -> Env`, its frozen default config dataclass and,
+    optionally, its camera settings (`vision`: `VisionConfig` fields such as width, height, mode).
 
     The config's fields become overridable keys (`vnl.make(name, key=value)`, `env_config.key`);
     it needs an `episode_length` field for training. Training presets for it (e.g. a smaller
@@ -82,7 +111,11 @@ def register(name: str, factory: Callable[[Any], Env], default_config: Any, desc
     """
     if not hasattr(default_config, "episode_length"):
         raise VnlError(f"{name}: the default config needs an episode_length field")
-    _REGISTRY[name] = Entry(factory, default_config, description)
+    try:
+        config_lib.from_dict(VisionConfig, dict(vision or {}), prefix="vision.")  # unknown keys, bad values
+    except VnlError as e:
+        raise VnlError(f"{name}: {e}") from None
+    _REGISTRY[name] = Entry(factory, default_config, description, vision or {})
 
 
 def unregister(name: str) -> None:
@@ -108,6 +141,11 @@ def default_config(name: str) -> Any:
     return entry(name).default_config
 
 
+def vision_defaults(name: str) -> dict[str, Any]:
+    """Env `name`'s camera settings (`VisionConfig` fields it changes), as a new plain dict."""
+    return dict(entry(name).vision)
+
+
 def env_config(name: str, overrides: dict[str, Any] | None = None) -> Any:
     """Default config of `name` with `overrides` applied and validated (no compile)."""
     base = default_config(name)
@@ -122,17 +160,18 @@ def env_config(name: str, overrides: dict[str, Any] | None = None) -> Any:
 def make(name: str, vision: bool | dict[str, Any] | Any = False, **overrides: Any) -> Env:
     """Builds environment `name`; keyword overrides replace fields of its default config.
 
-    `vision=True` (or a dict / `vnl.vision.VisionConfig` of camera settings: camera, width,
-    height, mode, ...) returns the env with a dict observation {"state", "pixels/<camera>"}
-    rendered by the in-graph camera (`vnl.vision.VisionEnv`).
+    `vision=True` (the env's own camera settings), a dict of settings that change some of them
+    (camera, width, height, mode, ...) or a whole `vnl.vision.VisionConfig` returns the env with a
+    dict observation {"state", "pixels/<camera>"} rendered by the in-graph camera
+    (`vnl.vision.VisionEnv`).
 
     Bad names, unknown keys and invalid values raise `VnlError` before anything is compiled.
     """
     e = entry(name)
     if isinstance(vision, dict):
-        vision = config_lib.from_dict(VisionConfig, {"enabled": True, **vision}, prefix="vision.")
+        vision = config_lib.from_dict(VisionConfig, {**e.vision, "enabled": True, **vision}, prefix="vision.")
     elif vision is True:
-        vision = VisionConfig(enabled=True)
+        vision = config_lib.from_dict(VisionConfig, {**e.vision, "enabled": True}, prefix="vision.")
     elif vision is not False and not isinstance(vision, VisionConfig):
         raise VnlError(f"vision must be True/False, a dict of camera settings or a VisionConfig, got {vision!r}")
     env = e.factory(env_config(name, overrides))

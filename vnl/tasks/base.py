@@ -17,7 +17,7 @@ import mujoco
 import numpy as np
 from dm_control import mjcf
 
-from vnl import physics
+from vnl import physics, walkers
 from vnl.errors import VnlError
 from vnl.quiet_mjx import mjx
 from vnl.tasks.contract import Env
@@ -39,7 +39,7 @@ class WalkerTaskConfig:
     checked), so a run is rebuilt with the file it was trained with or not at all.
     """
 
-    walker: Literal["ant", "humanoid", "rodent", "brax_ant", "brax_humanoid"] = "ant"
+    walker: str = "ant"  # a name in vnl.walkers' registry (`vnl.walkers.names()`)
     walker_xml: str = ""
     walker_xml_sha256: str = ""
     root_body: str = "torso"
@@ -78,6 +78,7 @@ class WalkerTaskConfig:
     incline: float = 0.0
 
     def validate(self) -> None:
+        walkers.spec(self.walker)  # a registered name, or the list of them
         if self.impl == "warp":
             check_warp_available()
         physics.resolve_threads(self.threads)
@@ -141,22 +142,24 @@ def check_warp_available() -> None:
 
 
 def build_walker(config: WalkerTaskConfig) -> Walker:
-    """The walker named by `config` (`walker_xml` wins over `walker`)."""
-    from vnl.walkers import ant, from_file, humanoid, rodent
+    """The walker named by `config` (`walker_xml` wins over `walker`), from `vnl.walkers`' registry."""
+    from vnl.walkers import from_file
 
     if config.walker_xml:
         return from_file.build(config.walker_xml, config.root_body, self_collision=config.self_collision)
-    if config.walker == "ant":
-        return ant.build(self_collision=config.self_collision, contacts=config.contacts)
-    if config.walker in ("brax_ant", "brax_humanoid"):
-        from vnl.walkers import brax_models
+    return walkers.build(config.walker, config)
 
-        return brax_models.build(config.walker.removeprefix("brax_"))
-    if config.walker == "rodent":
-        return rodent.build(
-            self_collision=config.self_collision, contacts=config.contacts, rigid_tail=config.rigid_tail
+
+def check_walker(config: WalkerTaskConfig, arena: str | None) -> None:
+    """Raises `VnlError` unless `config.walker` is registered (`vnl.walkers.names()`) and, for a task
+    with an `arena` (e.g. "gaps corridor"), not a standalone world that brings its own floor."""
+    spec = walkers.spec(config.walker)
+    if arena and spec.standalone and not config.walker_xml:
+        placeable = ", ".join(n for n in walkers.names() if not walkers.spec(n).standalone)
+        raise VnlError(
+            f"walker: the {config.walker} brings its own floor and cannot go in the {arena}; "
+            f"use one of {placeable}, or walker_xml"
         )
-    return humanoid.build()
 
 
 def compile_world(walker: Walker, arena: mjcf.RootElement | None) -> tuple[mujoco.MjModel, mjx_compat.Report]:

@@ -24,85 +24,43 @@ choice: 0.5 is chance). Their means over evaluation episodes are fractions of ep
 from __future__ import annotations
 
 import dataclasses
-from typing import Literal
 
 import jax
 import jax.numpy as jp
-import mujoco
 
-from vnl import physics
 from vnl.errors import VnlError
 from vnl.quiet_mjx import mjx
-from vnl.tasks.base import check_warp_available
+from vnl.tasks import ball
+from vnl.tasks.ball import BallTaskConfig, Target
 from vnl.tasks.contract import Env, State
-
-XML = """
-<mujoco model="cue_memory">
-  <option timestep="{timestep}"/>
-  <visual><global offwidth="640" offheight="480"/></visual>
-  <worldbody>
-    <light pos="0 0 4" dir="0 0 -1" directional="true"/>
-    <geom name="floor" type="plane" size="3 3 0.1" rgba="0.55 0.6 0.65 1" contype="0" conaffinity="0"/>
-    <camera name="side" pos="0 -1.6 1.6" xyaxes="1 0 0 0 0.7 0.7" fovy="60"/>
-    <body name="ball" pos="0 0 0.1">
-      <joint name="x" type="slide" axis="1 0 0" damping="{damping}"/>
-      <joint name="y" type="slide" axis="0 1 0" damping="{damping}"/>
-      <geom name="ball" type="sphere" size="0.08" mass="1" rgba="0.9 0.85 0.3 1" contype="0" conaffinity="0"/>
-    </body>
-    <body name="left" mocap="true" pos="{lx} {ty} 0.1">
-      <geom name="left" type="sphere" size="0.1" rgba="0.2 0.4 0.9 1" contype="0" conaffinity="0"/>
-    </body>
-    <body name="right" mocap="true" pos="{rx} {ty} 0.1">
-      <geom name="right" type="sphere" size="0.1" rgba="0.9 0.3 0.2 1" contype="0" conaffinity="0"/>
-    </body>
-  </worldbody>
-  <actuator>
-    <motor name="x" joint="x" gear="{gear}" ctrlrange="-1 1" ctrllimited="true"/>
-    <motor name="y" joint="y" gear="{gear}" ctrlrange="-1 1" ctrllimited="true"/>
-  </actuator>
-</mujoco>
-"""
 
 
 @dataclasses.dataclass(frozen=True)
-class CueMemoryConfig:
+class CueMemoryConfig(BallTaskConfig):
     """Lengths in metres; steps are control steps (`physics_timestep` x `n_substeps` s each)."""
 
     episode_length: int = 30
+    ball_radius: float = 0.08
+    reset_noise_scale: float = 0.02  # the ball's start position, uniform ± this
+    reach_distance: float = 0.15
     cue_steps: int = 3  # the cue is shown at steps 0 .. cue_steps - 1
     go_step: int = 10  # the ball is held until this step; the delay is go_step - cue_steps steps
     target_distance: float = 0.5  # the targets sit at (±target_distance, target_distance)
-    reach_distance: float = 0.15
-    reached_bonus: float = 1.0
     target_bonus: float = 1.0
-    ctrl_cost_weight: float = 0.01
-    physics_timestep: float = 0.02
-    n_substeps: int = 2
-    gear: float = 5.0  # force (N) at action 1 on the 1 kg ball
-    damping: float = 2.0  # N·s/m on each slide joint
-    reset_noise_scale: float = 0.02  # the ball's start position, uniform ± this
-    impl: Literal["jax", "warp", "c"] = "jax"  # physics (vnl.physics); c = MuJoCo C on `threads` threads
-    threads: int | None = None
 
     def validate(self) -> None:
-        if self.episode_length < 1 or self.n_substeps < 1 or self.cue_steps < 1:
-            raise VnlError("episode_length, n_substeps and cue_steps must be >= 1")
+        super().validate()
+        if self.cue_steps < 1:
+            raise VnlError(f"cue_steps must be >= 1, got {self.cue_steps}")
         if not self.cue_steps <= self.go_step < self.episode_length:
             raise VnlError(
                 f"need cue_steps <= go_step < episode_length, got {self.cue_steps}, {self.go_step} and "
                 f"{self.episode_length}"
             )
-        if not 0 < self.physics_timestep <= 0.05:
-            raise VnlError(f"physics_timestep must be in (0, 0.05], got {self.physics_timestep}")
-        for key in ("target_distance", "reach_distance", "gear", "damping"):
-            if not getattr(self, key) > 0:
-                raise VnlError(f"{key} must be > 0, got {getattr(self, key)}")
-        for key in ("reached_bonus", "target_bonus", "ctrl_cost_weight", "reset_noise_scale"):
-            if not getattr(self, key) >= 0:
-                raise VnlError(f"{key} must be >= 0, got {getattr(self, key)}")
-        if self.impl == "warp":
-            check_warp_available()
-        physics.resolve_threads(self.threads)
+        if not self.target_distance > 0:
+            raise VnlError(f"target_distance must be > 0, got {self.target_distance}")
+        if not self.target_bonus >= 0:
+            raise VnlError(f"target_bonus must be >= 0, got {self.target_bonus}")
 
 
 CUE_MEMORY = CueMemoryConfig()
@@ -115,10 +73,12 @@ class CueMemory(Env):
     def __init__(self, config: CueMemoryConfig) -> None:
         c = config
         d = c.target_distance
-        xml = XML.format(timestep=c.physics_timestep, damping=c.damping, gear=c.gear, lx=-d, rx=d, ty=d)
-        super().__init__(
-            config, mujoco.MjModel.from_xml_string(xml), n_substeps=c.n_substeps, impl=c.impl, threads=c.threads
-        )
+        targets = [
+            Target("left", (-d, d, 0.1), 0.1, (0.2, 0.4, 0.9, 1.0)),
+            Target("right", (d, d, 0.1), 0.1, (0.9, 0.3, 0.2, 1.0)),
+        ]
+        model = ball.world(c, 3.0, ((0, -1.6, 1.6), (1, 0, 0, 0, 0.7, 0.7)), targets)
+        super().__init__(config, model, n_substeps=c.n_substeps, impl=c.impl, threads=c.threads)
 
     def reset(self, rng: jax.Array) -> State:
         c = self.config

@@ -21,7 +21,6 @@ root for other walkers) got at least R from the centre (out of the bowl: the esc
 from __future__ import annotations
 
 import dataclasses
-from typing import Literal
 
 import jax
 import jax.numpy as jp
@@ -33,13 +32,21 @@ from vnl.arenas import bowl as bowl_arena
 from vnl.errors import VnlError
 from vnl.heightfield import Grid
 from vnl.quiet_mjx import mjx
-from vnl.tasks.base import WalkerTask, WalkerTaskConfig, body_id, build_walker, compile_world, spawn_height
+from vnl.tasks.base import (
+    WalkerTask,
+    WalkerTaskConfig,
+    body_id,
+    build_walker,
+    check_walker,
+    compile_world,
+    spawn_height,
+)
 from vnl.tasks.contract import State
 
 
 @dataclasses.dataclass(frozen=True)
 class EscapeBowlConfig(WalkerTaskConfig):
-    walker: Literal["ant", "humanoid", "rodent"] = "rodent"
+    walker: str = "rodent"
     episode_length: int = 1000
     physics_timestep: float = 0.002
     n_substeps: int = 10
@@ -55,10 +62,7 @@ class EscapeBowlConfig(WalkerTaskConfig):
 
     def validate(self) -> None:
         super().validate()
-        if self.walker == "humanoid" and not self.walker_xml:
-            raise VnlError(
-                "walker: the humanoid brings its own floor and cannot go in the bowl; use ant, rodent or walker_xml"
-            )
+        check_walker(self, arena="bowl")
         b = self.bowl
         if b.half_size <= 0 or b.height < 0 or b.base <= 0:
             raise VnlError("bowl.half_size and bowl.base must be > 0 and bowl.height >= 0")

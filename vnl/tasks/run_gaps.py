@@ -28,7 +28,6 @@ passed, and `ended_<cause>`, 1 if the episode ended that way (`RunGaps.failure_c
 from __future__ import annotations
 
 import dataclasses
-from typing import Literal
 
 import jax
 import jax.numpy as jp
@@ -44,6 +43,7 @@ from vnl.tasks.base import (
     WalkerTaskConfig,
     build_walker,
     check_upright_cosine,
+    check_walker,
     compile_world,
     spawn_height,
 )
@@ -55,7 +55,7 @@ class RunGapsConfig(WalkerTaskConfig):
     """`rodent_run_gaps` defaults: v* = 1 m/s, spawn at x = 5 m, fail below -0.3 m, 30 s episodes
     of 20 ms control steps (dm_control: 1 ms physics steps; here 2 ms × 10, see RODENT_RUN_GAPS)."""
 
-    walker: Literal["ant", "humanoid", "rodent"] = "rodent"
+    walker: str = "rodent"
     episode_length: int = 1500
     physics_timestep: float = 0.002
     n_substeps: int = 10
@@ -92,11 +92,7 @@ class RunGapsConfig(WalkerTaskConfig):
 
     def validate(self) -> None:
         super().validate()
-        if self.walker == "humanoid" and not self.walker_xml:
-            raise VnlError(
-                "walker: the humanoid brings its own floor and cannot run in the gaps corridor; "
-                "use ant, rodent or walker_xml"
-            )
+        check_walker(self, arena="gaps corridor")
         if self.target_velocity <= 0:
             raise VnlError(f"target_velocity must be > 0, got {self.target_velocity}")
         c = self.corridor
@@ -130,7 +126,19 @@ class RunGapsConfig(WalkerTaskConfig):
             raise VnlError(f"spawn_x must be in the gapless start region [0, {c.start_length}), got {self.spawn_x}")
 
 
-RODENT_RUN_GAPS = RunGapsConfig()
+RODENT_RUN_GAPS = RunGapsConfig(
+    observe_heading=True,  # a compass: without it the rat's gait drifted off +x: docs/experiments/rat-gait.md
+    # With the heading alone the rat drifted off the corridor's side: docs/experiments/rat-corridor.md
+    observe_corridor=True,
+    healthy_min_upright=0.7071,  # the episode ends beyond 45 degrees of tilt: docs/experiments/rat-corridor.md
+    # 12 ground heights from 0.1 m behind to 0.45 m ahead: where the gaps are (docs/experiments/rat-corridor.md)
+    ground_scan=(-0.1, -0.05, 0.0, 0.05, 0.1, 0.15, 0.2, 0.25, 0.3, 0.35, 0.4, 0.45),
+)
+"""`rodent_run_gaps`: dm_control's `rodent_run_gaps` rules (velocity tolerance at 1 m/s, no healthy
+bonus, fail below -0.3 m) with what a blind rat needs and dm_control's rat gets from its camera:
+a compass (`heading`), the corridor's axis and offset (`corridor`), a ground scan ahead
+(`ground_ahead`), and an end to episodes beyond 45° of tilt (it learned to wriggle forward lying
+down). docs/reference/envs/rodent_run_gaps.md lists the differences."""
 ANT_RUN_GAPS = RunGapsConfig(
     walker="ant",
     physics_timestep=0.01,
@@ -151,11 +159,22 @@ ANT_RUN_GAPS = RunGapsConfig(
     ),
     spawn_x=12.5,
     observe_corridor=True,
+    # With the rules above alone the ant reached 1.6-2.0 gaps and stayed there: a leg stepped into
+    # a gap hangs there. What moved it (docs/experiments/ant-gaps.md):
+    terminate_foot_below=-0.1,  # a foot 10 cm into a gap ends the episode
+    healthy_reward=0.25,  # so that a foot in a gap costs the rest of the episode's bonus
+    terminate_root_below=0.2,  # the torso wedged in a gap ends the episode
+    healthy_min_upright=0.0,  # ... and so does the torso upside down (past 90 degrees)
+    # 25 ground heights from 0.8 m behind to 1.6 m ahead, every 0.1 m: where the gaps are
+    ground_scan=(-0.8, -0.7, -0.6, -0.5, -0.4, -0.3, -0.2, -0.1, 0.0, 0.1, 0.2, 0.3, 0.4)
+    + (0.5, 0.6, 0.7, 0.8, 0.9, 1.0, 1.1, 1.2, 1.3, 1.4, 1.5, 1.6),
 )
 """`ant_run_gaps`: the rodent corridor scaled by the ant's size (×2.5: platforms 1-2 m, gaps
 0.125-0.5 m, target 2.5 m/s, fail below -0.75 m), with `ant_run`'s physics (10 ms × 5). The ant
 observes the corridor's direction and its offset from the centre line (`observe_corridor`):
-without them it ran off the corridor's side (docs/experiments/ant-gaps.md)."""
+without them it ran off the corridor's side; a foot or the torso in a gap, or the torso upside
+down, ends the episode, a healthy bonus of 0.25 makes that cost something, and a ground scan says
+where the gaps are (docs/experiments/ant-gaps.md)."""
 
 
 class RunGaps(WalkerTask):

@@ -352,7 +352,8 @@ def build(
     if "preset" in file_values:  # checked even when --preset overrides it: never silently ignored
         presets.check_name(file_values["preset"])
     preset = presets.check_name(preset or file_values.get("preset") or default_preset())
-    values: dict[str, Any] = config_lib.merge({"env": env, "preset": preset}, presets.resolve(env, preset))
+    start = {"env": env, "preset": preset, "vision": registry.vision_defaults(env)}  # the env's own camera
+    values: dict[str, Any] = config_lib.merge(start, presets.resolve(env, preset))
     values = config_lib.merge(values, file_values)
     values["preset"] = preset
     for text in assignments or []:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 from dm_control.locomotion.walkers import ant as dmc_ant
 
 from vnl.walkers.base import Walker, add_ground_camera, add_tracking_cameras, collide_with_arena_only, keep_contacts
@@ -36,4 +38,11 @@ def build(self_collision: bool = False, contacts: str = "essential") -> Walker:
         end_effectors=tuple(b.name for b in walker.end_effectors),
         height=0.5,
         size=2.5,
+    )
+
+
+def from_config(config: Any) -> Walker:
+    """The ant with a task config's `self_collision` and `contacts` (the registry's builder)."""
+    return build(
+        self_collision=getattr(config, "self_collision", False), contacts=getattr(config, "contacts", "essential")
     )

@@ -10,6 +10,8 @@ floor), with `side` and `back` tracking cameras added for `vnl render`.
 
 from __future__ import annotations
 
+from typing import Any
+
 from dm_control import mjcf
 from etils import epath
 
@@ -31,3 +33,13 @@ def build(name: str) -> Walker:
     distance, height = (3.0, 1.5) if name == "ant" else (4.0, 1.0)
     add_tracking_cameras(torso, distance, height)
     return Walker(name=f"brax_{name}", mjcf_model=model, root_body="torso", standalone=True)
+
+
+def ant_from_config(config: Any) -> Walker:
+    """Brax's ant (it takes no options; the registry's builder for `brax_ant`)."""
+    return build("ant")
+
+
+def humanoid_from_config(config: Any) -> Walker:
+    """Brax's humanoid (it takes no options; the registry's builder for `brax_humanoid`)."""
+    return build("humanoid")

@@ -6,6 +6,8 @@ cameras `back`, `side` and `egocentric`, and its own floor and lights (a standal
 
 from __future__ import annotations
 
+from typing import Any
+
 from dm_control import mjcf
 from etils import epath
 
@@ -23,3 +25,8 @@ def build() -> Walker:
     """Builds the humanoid (a standalone world: floor, light and walker)."""
     model = mjcf.from_path(str(xml_path()))
     return Walker(name="humanoid", mjcf_model=model, root_body="torso", standalone=True)
+
+
+def from_config(config: Any) -> Walker:
+    """The humanoid (it takes no options; the registry's builder)."""
+    return build()

@@ -19,6 +19,8 @@ in an arena. Two further choices keep MJX fast on CPU, both configurable:
 
 from __future__ import annotations
 
+from typing import Any
+
 from dm_control.locomotion.walkers import rodent as dmc_rodent
 
 from vnl.walkers.base import Walker, collide_with_arena_only, keep_contacts
@@ -73,3 +75,12 @@ def _stiffen_tail(model) -> None:
             tendon.remove()
     for skin in model.find_all("skin"):
         skin.remove()
+
+
+def from_config(config: Any) -> Walker:
+    """The rat with a task config's `self_collision`, `contacts` and `rigid_tail` (the registry's builder)."""
+    return build(
+        self_collision=getattr(config, "self_collision", False),
+        contacts=getattr(config, "contacts", "essential"),
+        rigid_tail=getattr(config, "rigid_tail", True),
+    )

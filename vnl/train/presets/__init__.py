@@ -1,5 +1,11 @@
 """Training presets: named starting points for a run's config, one YAML file per env.
 
+A preset chooses compute (the physics implementation and threads, batch sizes, PPO settings,
+budgets, the network) and curricula, never the task: the env name is the task under every preset
+(`vnl.envs.registry`). Outside a curriculum's stages a preset's `env_config` may set only
+`registry.COMPUTE_FIELDS` and its `vision` only `registry.VISION_COMPUTE_FIELDS`; anything else is
+refused when the file is read (or `register` is called).
+
 `base.yaml` holds the generic presets (`cpu`, `gpu`, `tiny`); `<env>.yaml` holds what an env
 changes of them, each setting with a one-line reason and the docs page with the evidence. A file
 may start from another (`extends: _rodent`, deep-merged below its own values); files whose names
@@ -52,9 +58,27 @@ def _file(stem: str) -> dict[str, Any]:
     unknown = sorted(set(values) - {"extends", *NAMES})
     if unknown:  # a packaging or editing mistake, not a user's: a test loads every file
         raise ValueError(f"{path.name}: unknown top-level keys {unknown}; expected extends and {', '.join(NAMES)}")
+    for name in NAMES:
+        check_compute_only(values.get(name) or {}, f"{path.name}: {name}")
     base = _file(values.pop("extends")) if "extends" in values else {}
     merged = {name: typed_config.merge(base.get(name) or {}, values.get(name) or {}) for name in NAMES}
     return typed_config.freeze({k: v for k, v in merged.items() if v})
+
+
+def check_compute_only(preset: Any, where: str) -> None:
+    """Raises `VnlError` when preset `preset` (a partial config) sets a task rule: an `env_config`
+    key outside `registry.COMPUTE_FIELDS` or a `vision` key outside `VISION_COMPUTE_FIELDS`."""
+    if not isinstance(preset, dict):
+        raise VnlError(f"{where}: a preset is a mapping of config sections, got {preset!r}")
+    for section, allowed in (("env_config", registry.COMPUTE_FIELDS), ("vision", registry.VISION_COMPUTE_FIELDS)):
+        values = preset.get(section) or {}
+        rules = sorted(set(values) - allowed) if isinstance(values, dict) else [str(values)]
+        if rules:
+            raise VnlError(
+                f"{where}: {section}.{rules[0]} is a rule of the task, which a preset may not change (a preset "
+                f"sets only {', '.join(sorted(allowed))} of {section}); change the env's default config, register "
+                "a new env name for the variant, or put it in a curriculum stage"
+            )
 
 
 def generic(preset: str) -> dict[str, Any]:
@@ -90,8 +114,9 @@ def register(env: str, presets: dict[str, dict[str, Any]]) -> None:
     """Adds training presets for an env registered at run time (`vnl.envs.registry.register`):
     `presets` maps a preset name (cpu, gpu, tiny) to config overrides, e.g.
     `{"cpu": {"ppo": {"num_timesteps": 2_000_000}}}`."""
-    for name in presets:
+    for name, values in presets.items():
         check_name(name)
+        check_compute_only(values, f"presets of {env}: {name}")
     _registered[env] = typed_config.freeze(presets)
 
 
