@@ -1,8 +1,10 @@
 """PPO through vnl's training adapter learns a tiny env; checkpoints round-trip exactly."""
 
+import json
 import os
 import shutil
 import signal
+import time
 
 import jax
 import numpy as np
@@ -136,8 +138,10 @@ def test_no_checkpoint_is_a_clear_error(tmp_path):
         load_run(tmp_path / "nope")
 
 
-def test_sigterm_during_first_evaluation_still_leaves_a_checkpoint(tmp_path, monkeypatch):
-    """A real SIGTERM, sent while the step-0 evaluation runs, stops the run after checkpoint 0."""
+def test_sigterm_during_first_evaluation_stops_at_once_and_resume_starts_the_run_again(tmp_path, monkeypatch):
+    """A real SIGTERM, sent while the step-0 evaluation compiles and runs, ends the run then (on a
+    GPU that can be minutes from its end), with its config kept and nothing trained; `resume`
+    starts it from step 0 and trains it as if it had never stopped."""
     from vnl.train.loop import PPOLoop
 
     cfg = train_config.build("test_point", "tiny", file_values=SETTINGS)
@@ -146,11 +150,40 @@ def test_sigterm_during_first_evaluation_still_leaves_a_checkpoint(tmp_path, mon
     def evaluate(self, state, training_metrics):
         if not calls:
             os.kill(os.getpid(), signal.SIGTERM)  # without vnl's handler this kills the test
+            time.sleep(1.0)  # an evaluation still compiling when the signal is handled
         calls.append(1)
         return original(self, state, training_metrics)
 
     monkeypatch.setattr(PPOLoop, "evaluate", evaluate)
-    result = trainer.train(cfg, tmp_path / "run", say=lambda s: None)
-    assert result.interrupted and len(calls) == 1
-    assert checkpoint.steps(tmp_path / "run") == [0]
-    assert [r["step"] for r in metrics_io.read(tmp_path / "run" / "metrics.jsonl")] == [0]
+    said = []
+    result = trainer.train(cfg, tmp_path / "run", say=said.append)
+    assert result.interrupted and result.steps == 0
+    assert checkpoint.steps(tmp_path / "run") == [] and (tmp_path / "run" / "config.yaml").is_file()
+    assert any("stopped while compiling and running the first evaluation" in s for s in said), said
+    time.sleep(1.5)  # the abandoned evaluation finishes in its thread
+    monkeypatch.setattr(PPOLoop, "evaluate", original)
+    again = trainer.resume(tmp_path / "run", say=said.append)
+    assert not again.interrupted and any("has no checkpoint yet" in s for s in said)
+    assert checkpoint.steps(tmp_path / "run")[0] == 0 and again.steps >= cfg.ppo.num_timesteps
+
+
+def test_a_run_resumed_from_a_moved_directory_on_another_machine_says_what_differs(trained, tmp_path):
+    """A run directory copied elsewhere (as one brought back from a GPU allocation) resumes there;
+    a checkpoint written on another backend or device count is named in one line."""
+    cfg, out, _ = trained
+    moved = tmp_path / "moved"
+    shutil.copytree(out, moved)
+    last = checkpoint.steps(moved)[-1]
+    meta_path = checkpoint.step_dir(moved, last) / "meta.json"
+    meta = json.loads(meta_path.read_text())
+    assert meta["machine"]["backend"] == "cpu" and meta["machine"]["devices"] == jax.local_device_count()
+    meta["machine"].update(backend="gpu", device_kind="NVIDIA H200", host="gpu-node")
+    meta_path.write_text(json.dumps(meta))
+    said = []
+    result = trainer.resume(moved, flags={"ppo": {"num_timesteps": last + 2 * 4096}}, say=said.append)
+    line = next(s for s in said if "was written on" in s)
+    assert "1 gpu device(s) (NVIDIA H200) on gpu-node; resuming on" in line and "cpu device(s)" in line
+    assert result.steps > last and not result.interrupted
+    steps = [r["step"] for r in metrics_io.read(moved / "metrics.jsonl")]
+    assert steps == sorted(set(steps)) and steps[-1] == result.steps
+    assert checkpoint.steps(out)[-1] == last  # the original is untouched

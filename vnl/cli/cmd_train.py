@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import os
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -175,7 +177,7 @@ def _finisher(gl: str | None) -> Any:
 
 
 def run(args: argparse.Namespace) -> int:
-    from vnl.train import distributed, trainer
+    from vnl.train import distributed, signals, trainer
 
     if _multi_process(args):
         distributed.initialize(args.coordinator, args.num_processes, args.process_id)
@@ -197,4 +199,8 @@ def run(args: argparse.Namespace) -> int:
         result = trainer.train(config, out, say=say, finish=finish)
     if lead:
         process.say(f"[vnl] run directory: {out}")
+    if result.interrupted and signals.abandoned():  # stopped while compiling: see signals.abandoned
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(130)
     return 130 if result.interrupted else 0

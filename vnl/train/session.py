@@ -32,7 +32,7 @@ from vnl.train import curriculum, distributed, divergence, rundir, warm_start
 from vnl.train.config import TrainConfig
 from vnl.train.loop import LoopState
 from vnl.train.progress import make_record, progress_line, summary_line
-from vnl.train.signals import StopRequest
+from vnl.train.signals import CompileInterrupted, StopRequest
 from vnl.train.worlds import Worlds
 
 Say = Callable[[str], None]
@@ -66,11 +66,29 @@ def _silent(_: str) -> None:
     pass
 
 
+def machine(n_devices: int, processes: int) -> dict[str, Any]:
+    """Where a checkpoint is written: the backend, the devices' kind and count, processes, host."""
+    import socket
+
+    return {
+        "backend": jax.default_backend(),
+        "device_kind": jax.local_devices()[0].device_kind,
+        "devices": n_devices,
+        "processes": processes,
+        "host": socket.gethostname(),
+    }
+
+
+def stop_request() -> StopRequest:
+    """A new stop request for a run of this process (a second Ctrl-C aborts only a single-process run)."""
+    return StopRequest(abort_on_second=distributed.process_count() == 1)
+
+
 class Session:
     """A run being trained into `run_dir` (created by `rundir.prepare_run_dir`, or resumed from
     `restored`, or warm-started from `parent`, a `warm_start` parent run) in the envs of
     `worlds`. `say` prints progress and `progress(record)` receives each metrics record (process
-    0 only)."""
+    0 only). `stop`: the run's stop request, when the caller installed it before (`vnl.train.trainer`)."""
 
     def __init__(
         self,
@@ -81,6 +99,7 @@ class Session:
         worlds: Worlds,
         parent: Any = None,
         progress: Progress | None = None,
+        stop: StopRequest | None = None,
     ) -> None:
         self.config, self.run_dir, self.restored = config, run_dir, restored
         self.parent, self.progress = parent, progress
@@ -92,7 +111,7 @@ class Session:
         epoch = restored.meta["training_steps_per_epoch"] if restored else None
         self.loop = curriculum.make_loop(worlds, config, epoch, self.say)
         self.episode_seconds = self.loop.episode_length * env.dt
-        self.stop = StopRequest(abort_on_second=distributed.process_count() == 1)
+        self.stop = stop or stop_request()
         self.records: list[dict[str, Any]] = []
         self.first_step = restored.step if restored else 0
         self.wall_offset = 0.0  # wall time of the sessions this one continues
@@ -109,7 +128,11 @@ class Session:
         try:
             with self.stop.installed():
                 distributed.on_lead(self._open_run_dir)
-                interrupted, state = self._train()
+                try:
+                    interrupted, state = self._train()
+                except CompileInterrupted as e:  # single-process only: nothing of this session to save
+                    self.say(f"[vnl] stopped while {e.what}, before the first training step")
+                    interrupted, state = True, None
             saved = checkpoint.steps(self.run_dir) if self.lead else [self.loop.env_steps(state)]
             result = TrainResult(
                 run_dir=self.run_dir,
@@ -125,7 +148,9 @@ class Session:
         finally:
             self._close_tracker()
         distributed.on_lead(lambda: self._say_best(result.steps))
-        if interrupted:
+        if interrupted and self.lead and not saved:
+            self.say(f"[vnl] nothing was trained yet; `vnl train --resume {self.run_dir}` starts it again from step 0")
+        elif interrupted:
             self.say(
                 f"[vnl] stopped at step {result.steps:,}; continue with `vnl train --resume {self.run_dir}`, or "
                 f"use the checkpoint with `vnl eval {self.run_dir}` / `vnl render {self.run_dir}`."
@@ -203,12 +228,17 @@ class Session:
             )
         if loop.randomization and not restored:
             durable.write_atomic(self.run_dir / layout.RANDOMIZATION, json.dumps(loop.randomization, indent=2) + "\n")
-        self.say("[vnl] compiling (on a CPU about a minute; seconds with a warm compilation cache)...")
+        first = "the training epoch" + ("" if restored else " and the first evaluation")
+        self.say(
+            f"[vnl] compiling {first} for {loop.n_devices} {jax.default_backend()} device(s) (seconds with a warm "
+            "compilation cache; Ctrl-C stops at once)..."
+        )
 
     def _train(self) -> tuple[bool, LoopState]:
         """The epochs; returns (interrupted, final state)."""
         total = self.config.ppo.num_timesteps
         state = self._first_state()
+        self.stop.started()
         self.say(f"[vnl] compiled and ready {time.time() - self.t_start:.0f} s after start; training")
         step = self.loop.env_steps(state)
         # With several processes a stop is agreed on (any process's signal stops all of them at
@@ -228,12 +258,28 @@ class Session:
         return step < total, state
 
     def _first_state(self) -> LoopState:
-        """The restored state, or a fresh one evaluated and checkpointed at step 0; compiled."""
+        """The restored state, or a fresh one evaluated and checkpointed at step 0; compiled. Until
+        the step-0 checkpoint is written a stop request ends the session at once (`interruptible`)."""
+        interruptible = self.stop.interruptible
         if self.restored:
-            state = self.loop.from_arrays(self.restored.arrays)
-            self.loop.compile(state)
+            arrays = self.restored.arrays
+            state = interruptible(lambda: self.loop.from_arrays(arrays), "placing the restored state on the devices")
+            self._compile(state)
             self.evaluations = 1  # checkpoint_every counts evaluations after the restored one
             return state
+        state = interruptible(self._fresh_state, "compiling the environments' reset")
+        self._compile(state)
+        t = time.time()
+        episodes = self.config.ppo.num_eval_envs
+        what = f"compiling and running the first evaluation ({episodes} episodes)"
+        state, record = interruptible(lambda: self._evaluate(state, {}, 0), what)
+        self.say(f"[vnl] the first evaluation (compiled and run) took {time.time() - t:.1f} s")
+        self._save(0, state, record, force=True)
+        self._log(record)
+        return state
+
+    def _fresh_state(self) -> LoopState:
+        """The initial state (the envs reset), with the parent's networks for a warm start."""
         state = self.loop.init(self.config.seed)
         if self.parent is not None:
             state = warm_start.apply(self.loop, state, self.parent, self.config.init.keep_optimizer)
@@ -241,11 +287,13 @@ class Session:
             if self.parent.new_inputs:
                 added = ", ".join(self.parent.new_inputs)
                 self.say(f"[vnl] new observation entries {added}: zero weights, so the networks begin as the parent's")
-        self.loop.compile(state)
-        state, record = self._evaluate(state, {}, 0)
-        self._save(0, state, record, force=True)
-        self._log(record)
         return state
+
+    def _compile(self, state: LoopState) -> None:
+        """The training epoch compiled ahead of time; a stop request cuts it (`CompileInterrupted`)."""
+        what = f"compiling the training epoch for {self.loop.n_devices} {jax.default_backend()} device(s)"
+        seconds = self.stop.interruptible(lambda: self.loop.compile(state), what)
+        self.say(f"[vnl] compiled the training epoch in {seconds:.1f} s")
 
     # ---- each evaluation -------------------------------------------------------------------------
 
@@ -276,6 +324,7 @@ class Session:
             # What the networks read, so a warm start checks a grown observation without building this env.
             "observation_layout": self.loop.observation_layout,
             "versions": checkpoint.software_versions(),
+            "machine": machine(self.loop.n_devices, self.loop.process_count),
         }
         try:
             with self.stop.critical():

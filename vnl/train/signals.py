@@ -6,6 +6,11 @@ or metrics write: inside `critical()` the abort waits until the write is complet
 multi-process run a Ctrl-C reaches one process only, and aborting that one would leave the
 others blocked in their next collective, so there the second Ctrl-C only repeats the request:
 all processes stop together at the next evaluation.
+
+Before the first training step there is nothing to save yet and compiling can take minutes (XLA
+holds the calling thread in C++, where no Python signal handler runs): `interruptible` runs that
+work in a worker thread, so a SIGINT/SIGTERM stops the run within a fraction of a second
+(`CompileInterrupted`), keeping whatever was written before.
 """
 
 from __future__ import annotations
@@ -14,8 +19,31 @@ import contextlib
 import os
 import signal
 import threading
-from collections.abc import Iterator
-from typing import Any
+from collections.abc import Callable, Iterator
+from typing import Any, TypeVar
+
+T = TypeVar("T")
+
+POLL_SECONDS = 0.1
+"""How often `interruptible` looks for a stop request while its work runs."""
+
+
+_abandoned: list[threading.Thread] = []
+
+
+def abandoned() -> bool:
+    """Whether work cut by a stop request (`StopRequest.interruptible`) still runs in a worker
+    thread: a process that ends now should end with `os._exit` (the CLI does), since Python's
+    shutdown would stop that thread inside XLA's C++ code and abort the process."""
+    return any(t.is_alive() for t in _abandoned)
+
+
+class CompileInterrupted(KeyboardInterrupt):
+    """A stop request (SIGINT/SIGTERM) arrived during `StopRequest.interruptible` work: `what`."""
+
+    def __init__(self, what: str) -> None:
+        super().__init__(what)
+        self.what = what
 
 
 class StopRequest:
@@ -30,6 +58,8 @@ class StopRequest:
         self.abort_on_second = abort_on_second
         self._critical = 0
         self._abort_pending = False
+        self._installed = 0  # 1 while its handlers are installed
+        self._during: str | None = None  # what the run does before its first step (`interruptible`, `starting`)
 
     def handle(self, signum: int, frame: Any) -> None:
         """The SIGINT/SIGTERM handler. Writes with os.write: a print from a signal handler can hit
@@ -49,11 +79,30 @@ class StopRequest:
                 return
             raise KeyboardInterrupt
         self.requested.set()
+        if self._during is not None:
+            os.write(2, f"\n[vnl] {name}: stopping now, while {self._during}\n".encode())
+            return
         again = "Ctrl-C again to abort now; " if self.abort_on_second else ""
         os.write(
             2,
             f"\n[vnl] {name}: stopping at the next evaluation ({again}checkpoints already written are kept)\n".encode(),
         )
+
+    def starting(self, what: str) -> None:
+        """Marks the stretch before the first training step, `what` it does: a stop request there
+        is answered "stopping now" and ends the run at the next `interruptible` or `check_start`;
+        `started()` ends it."""
+        self._during = what
+
+    def started(self) -> None:
+        """The first training step is reached: from now on a stop request ends the run at the next
+        evaluation, with a checkpoint."""
+        self._during = None
+
+    def check_start(self) -> None:
+        """Raises `CompileInterrupted` if a stop was requested (before the first training step)."""
+        if self.requested.is_set():
+            raise CompileInterrupted(self._during or "starting")
 
     @contextlib.contextmanager
     def critical(self) -> Iterator[None]:
@@ -68,16 +117,51 @@ class StopRequest:
             self._abort_pending = False
             raise KeyboardInterrupt
 
+    def interruptible(self, work: Callable[[], T], what: str) -> T:
+        """`work()`, run in a worker thread while this (main) thread waits for it or for a stop
+        request; raises `CompileInterrupted(what)` within `POLL_SECONDS` of a SIGINT/SIGTERM,
+        leaving the worker to be dropped with the process. Work that must not be cut (a write)
+        never goes here. Outside the main thread, or before `installed`, it simply runs `work`."""
+        main = threading.current_thread() is threading.main_thread()
+        if not (self._installed and self.abort_on_second and main):
+            return work()  # several processes stop together at an evaluation, never one alone here
+        if self.requested.is_set():
+            raise CompileInterrupted(what)
+        outcome: dict[str, Any] = {}
+
+        def run() -> None:
+            try:
+                outcome["value"] = work()
+            except BaseException as e:  # noqa: BLE001 - handed to the main thread below
+                outcome["error"] = e
+
+        worker = threading.Thread(target=run, name=f"vnl: {what}", daemon=True)
+        before, self._during = self._during, what
+        try:
+            worker.start()
+            while worker.is_alive():
+                worker.join(POLL_SECONDS)
+                if self.requested.is_set() and worker.is_alive():
+                    _abandoned.append(worker)
+                    raise CompileInterrupted(what)
+        finally:
+            self._during = before
+        if "error" in outcome:
+            raise outcome["error"]
+        return outcome["value"]
+
     @contextlib.contextmanager
     def installed(self) -> Iterator[StopRequest]:
         """Installs the handlers for SIGINT and SIGTERM (main thread only) and restores the old
         ones on exit."""
-        if threading.current_thread() is not threading.main_thread():
-            yield self
+        if threading.current_thread() is not threading.main_thread() or self._installed:
+            yield self  # not the main thread, or installed already (a session inside `vnl train`)
             return
         old = {s: signal.signal(s, self.handle) for s in (signal.SIGINT, signal.SIGTERM)}
+        self._installed = 1
         try:
             yield self
         finally:
+            self._installed = 0
             for s, h in old.items():
                 signal.signal(s, h)

@@ -27,10 +27,11 @@ from vnl import typed_config as config_lib
 from vnl.errors import VnlError
 from vnl.io import checkpoint, runlock
 from vnl.io import metrics as metrics_io
-from vnl.train import distributed, loop, rundir, warm_start
+from vnl.train import distributed, loop, rundir, session, warm_start
 from vnl.train.config import TrainConfig, read_config
 from vnl.train.config_changes import resume_config
 from vnl.train.session import Finish, Progress, Restored, Session, TrainResult
+from vnl.train.signals import CompileInterrupted
 from vnl.train.worlds import Worlds
 
 __all__ = ["TrainResult", "resume", "resume_config", "train"]
@@ -45,29 +46,83 @@ def train(
 ) -> TrainResult:
     """Trains `config.env` with Brax PPO (`vnl.train.loop`), writing everything into `run_dir`.
 
-    Returns when training ends or after a stop was requested (SIGINT/SIGTERM). `finish(run_dir,
-    env)` runs after a completed run, while the trackers are open, with the env the run ended in;
-    a path it returns (a video) is uploaded to wandb when enabled. `progress(record)` is called
-    with each metrics record (e.g. to move a notebook's progress bar). With `config.init.run`, the
-    run starts from that run's networks (`vnl.train.warm_start`); its layout is checked before
-    anything is written. Each world (each curriculum stage's env) is built once (`Worlds`).
-    Process 0 holds the run directory's lock (`runlock`) from before config.yaml is written to the
-    end; a directory another process writes is refused.
+    Returns when training ends or after a stop was requested (SIGINT/SIGTERM: at the next
+    evaluation, or at once before the first training step). `finish(run_dir, env)` runs after a
+    completed run, while the trackers are open, with the env the run ended in; a path it returns
+    (a video) is uploaded to wandb when enabled. `progress(record)` is called with each metrics
+    record (e.g. to move a notebook's progress bar). With `config.init.run`, the run starts from
+    that run's networks (`vnl.train.warm_start`); its layout is checked before anything is
+    written. Each world (each curriculum stage's env) is built once (`Worlds`). Process 0 holds
+    the run directory's lock (`runlock`) from before config.yaml is written to the end; a
+    directory another process writes is refused.
     """
-    run_dir = Path(run_dir)
+    return _start(config, Path(run_dir), say, finish, progress, saved=None)
+
+
+def _start(
+    config: TrainConfig,
+    run_dir: Path,
+    say: Callable[[str], None],
+    finish: Finish | None,
+    progress: Progress | None,
+    saved: TrainConfig | None,
+) -> TrainResult:
+    """A run from step 0: into a new directory (`saved` None), or into `run_dir` again, whose
+    config.yaml holds `saved`, when it stopped before its first checkpoint."""
     loop.check_devices(config)
-    worlds = Worlds(config, say if distributed.is_lead() else None)
-    _check_video_camera(config, worlds)
-    parent = None
-    if config.init.run is not None:
-        parent = warm_start.load_parent(config)
-        parent = warm_start.check_layout(parent, worlds.env(0), config.env)  # the env the parent starts in
-        config = warm_start.recorded(config, parent)
-    with contextlib.ExitStack() as lock:
-        distributed.on_lead(lambda: rundir.create_run_dir(run_dir))
-        distributed.on_lead(lambda: lock.enter_context(runlock.hold(run_dir)))
-        distributed.on_lead(lambda: rundir.prepare_run_dir(run_dir, config))
-        return Session(config, run_dir, None, say, worlds, parent=parent, progress=progress).run(finish)
+    stop = session.stop_request()
+    with stop.installed():
+        stop.starting("preparing the run")
+        try:
+            worlds = stop.interruptible(lambda: Worlds(config, say if distributed.is_lead() else None), BUILDING)
+            stop.check_start()
+        except CompileInterrupted as e:
+            return _stopped_before_start(run_dir, say, e)
+        _check_video_camera(config, worlds)
+        parent = None
+        if config.init.run is not None:
+            parent = warm_start.load_parent(config)
+            parent = warm_start.check_layout(parent, worlds.env(0), config.env)  # the env the parent starts in
+            config = warm_start.recorded(config, parent)
+        with contextlib.ExitStack() as lock:
+            if saved is None:
+                distributed.on_lead(lambda: rundir.create_run_dir(run_dir))
+            distributed.on_lead(lambda: lock.enter_context(runlock.hold(run_dir)))
+            if saved is None:
+                distributed.on_lead(lambda: rundir.prepare_run_dir(run_dir, config))
+            else:
+                distributed.on_lead(lambda: _check_unchanged(run_dir, []))
+                if config != saved:
+                    distributed.on_lead(lambda: config_lib.dump_yaml(config, str(run_dir / "config.yaml")))
+            try:
+                s = stop.interruptible(
+                    lambda: Session(config, run_dir, None, say, worlds, parent=parent, progress=progress, stop=stop),
+                    PREPARING,
+                )
+            except CompileInterrupted as e:
+                return _stopped_in_preparation(run_dir, say, e)
+            return s.run(finish)
+
+
+BUILDING = "building the worlds"
+"""What a run does before its session: a stop request there ends it with nothing written."""
+
+
+PREPARING = "preparing the training loop"
+
+
+def _stopped_before_start(run_dir: Path, say: Callable[[str], None], e: CompileInterrupted) -> TrainResult:
+    """The result of a run stopped before its session began: nothing of it was written."""
+    say(f"[vnl] stopped while {e.what}; nothing was written")
+    return TrainResult(run_dir=run_dir, steps=0, interrupted=True, final_metrics={}, records=[], wall_time=0.0)
+
+
+def _stopped_in_preparation(run_dir: Path, say: Callable[[str], None], e: CompileInterrupted) -> TrainResult:
+    """The result of a run stopped after its directory was ready, before its session began."""
+    steps = checkpoint.steps(run_dir)
+    say(f"[vnl] stopped while {e.what}; `vnl train --resume {run_dir}` continues it")
+    last = steps[-1] if steps else 0
+    return TrainResult(run_dir=run_dir, steps=last, interrupted=True, final_metrics={}, records=[], wall_time=0.0)
 
 
 def _check_video_camera(config: TrainConfig, worlds: Worlds) -> None:
@@ -98,20 +153,45 @@ def resume(
     config = resume_config(saved, assignments, flags)
     loop.check_devices(config)
     seen = checkpoint.steps(run_dir)
+    if not seen and from_step is None and not _records(run_dir):
+        # Stopped before its first checkpoint (e.g. while compiling, at the end of a short GPU
+        # allocation): nothing was trained, so it starts again from step 0 with its own config.
+        say(f"[vnl] {run_dir} has no checkpoint yet (it stopped before its first step); starting it from step 0")
+        return _start(config, run_dir, say, finish, progress, saved=saved)
     step, arrays, meta = checkpoint.load_train_state(run_dir, from_step, required=RESUME_META)
     if (run_dir / "metrics.jsonl").exists():
         metrics_io.read(run_dir / "metrics.jsonl")  # a damaged file is an error now, not after compiling
-    worlds = Worlds(config, say if distributed.is_lead() else None)
-    _check_video_camera(config, worlds)
-    _warn_versions(meta, step)
-    with contextlib.ExitStack() as lock:  # taken after the checks above: a refused resume writes nothing
-        distributed.on_lead(lambda: lock.enter_context(runlock.hold(run_dir)))
-        distributed.on_lead(lambda: _check_unchanged(run_dir, seen))
-        if config != saved:
-            distributed.on_lead(lambda: config_lib.dump_yaml(config, str(run_dir / "config.yaml")))
-        _say_schedule(config, say)
-        restored = Restored(step, arrays, meta)
-        return Session(config, run_dir, restored, say, worlds, progress=progress).run(finish)
+    stop = session.stop_request()
+    with stop.installed():
+        stop.starting("preparing the run")
+        try:
+            worlds = stop.interruptible(lambda: Worlds(config, say if distributed.is_lead() else None), BUILDING)
+            stop.check_start()
+        except CompileInterrupted as e:
+            return _stopped_before_start(run_dir, say, e)
+        _check_video_camera(config, worlds)
+        _warn_versions(meta, step)
+        _say_machine(meta, step, say)
+        with contextlib.ExitStack() as lock:  # taken after the checks above: a refused resume writes nothing
+            distributed.on_lead(lambda: lock.enter_context(runlock.hold(run_dir)))
+            distributed.on_lead(lambda: _check_unchanged(run_dir, seen))
+            if config != saved:
+                distributed.on_lead(lambda: config_lib.dump_yaml(config, str(run_dir / "config.yaml")))
+            _say_schedule(config, say)
+            restored = Restored(step, arrays, meta)
+            try:
+                s = stop.interruptible(
+                    lambda: Session(config, run_dir, restored, say, worlds, progress=progress, stop=stop), PREPARING
+                )
+            except CompileInterrupted as e:
+                return _stopped_in_preparation(run_dir, say, e)
+            return s.run(finish)
+
+
+def _records(run_dir: Path) -> list[dict[str, Any]]:
+    """The run's metrics records ([] when it has no metrics.jsonl); `VnlError` for a damaged file."""
+    path = run_dir / "metrics.jsonl"
+    return metrics_io.read(path) if path.exists() else []
 
 
 RESUME_META = ("training_steps_per_epoch",)
@@ -140,6 +220,29 @@ def _warn_versions(meta: dict[str, Any], step: int) -> None:
             "run may differ from one never stopped",
             stacklevel=3,
         )
+
+
+def _say_machine(meta: dict[str, Any], step: int, say: Callable[[str], None]) -> None:
+    """One line when the checkpoint was written on another kind of machine (a run moved between a
+    GPU allocation and a CPU, or to more devices): it continues, on the new machine's numbers."""
+    then = meta.get("machine")
+    if not isinstance(then, dict):
+        return
+    import jax
+
+    now = session.machine(jax.local_device_count(), jax.process_count())
+    keys = ("backend", "device_kind", "devices", "processes")
+    if all(then.get(k) == now[k] for k in keys):
+        return
+
+    def where(m: dict[str, Any]) -> str:
+        procs = f" x {m.get('processes')} processes" if m.get("processes", 1) != 1 else ""
+        return f"{m.get('devices')} {m.get('backend')} device(s) ({m.get('device_kind')}){procs} on {m.get('host')}"
+
+    say(
+        f"[vnl] the checkpoint of step {step:,} was written on {where(then)}; resuming on {where(now)}: the run "
+        "goes on from the same state, but its numbers from here are not bit-identical to a run that stayed"
+    )
 
 
 def _say_schedule(config: TrainConfig, say: Callable[[str], None]) -> None:
