@@ -31,7 +31,7 @@ from vnl.train import distributed, loop, rundir, session, warm_start
 from vnl.train.config import TrainConfig, read_config
 from vnl.train.config_changes import resume_config
 from vnl.train.session import Finish, Progress, Restored, Session, TrainResult
-from vnl.train.signals import CompileInterrupted
+from vnl.train.signals import CompileInterrupted, StopRequest
 from vnl.train.worlds import Worlds
 
 __all__ = ["TrainResult", "resume", "resume_config", "train"]
@@ -72,10 +72,8 @@ def _start(
     loop.check_devices(config)
     stop = session.stop_request()
     with stop.installed():
-        stop.starting("preparing the run")
         try:
-            worlds = stop.interruptible(lambda: Worlds(config, say if distributed.is_lead() else None), BUILDING)
-            stop.check_start()
+            worlds = _build_worlds(config, stop, say)
         except CompileInterrupted as e:
             return _stopped_before_start(run_dir, say, e)
         _check_video_camera(config, worlds)
@@ -104,8 +102,12 @@ def _start(
             return s.run(finish)
 
 
-BUILDING = "building the worlds"
-"""What a run does before its session: a stop request there ends it with nothing written."""
+def _build_worlds(config: TrainConfig, stop: StopRequest, say: Callable[[str], None]) -> Worlds:
+    """The run's worlds, built where a stop request ends the run at once (`CompileInterrupted`)."""
+    stop.starting("preparing the run")
+    worlds = stop.interruptible(lambda: Worlds(config, say if distributed.is_lead() else None), "building the worlds")
+    stop.check_start()
+    return worlds
 
 
 PREPARING = "preparing the training loop"
@@ -163,10 +165,8 @@ def resume(
         metrics_io.read(run_dir / "metrics.jsonl")  # a damaged file is an error now, not after compiling
     stop = session.stop_request()
     with stop.installed():
-        stop.starting("preparing the run")
         try:
-            worlds = stop.interruptible(lambda: Worlds(config, say if distributed.is_lead() else None), BUILDING)
-            stop.check_start()
+            worlds = _build_worlds(config, stop, say)
         except CompileInterrupted as e:
             return _stopped_before_start(run_dir, say, e)
         _check_video_camera(config, worlds)
