@@ -49,14 +49,13 @@ def default_out(args: argparse.Namespace) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from vnl import record, viewer
-    from vnl.analysis import open_recording
+    from vnl import record, recording, viewer
     from vnl.policy import load_run
 
     source = Path(args.source)
     out = Path(args.out or default_out(args))
     if source.is_file():
-        ds = open_recording(source)
+        ds = recording.read(source)
         env = viewer.recording_env(ds, source)
     else:
         run = load_run(source, step=checks.chosen_step(source, args.step))

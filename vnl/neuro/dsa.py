@@ -26,10 +26,15 @@ systems (docs/how-to/neurophysiology.md).
 from __future__ import annotations
 
 import functools
+from typing import Any
 
 import numpy as np
 
 from vnl.errors import VnlError
+from vnl.neuro.registry import Options
+
+RANGE = (0.0, float(np.pi / 2))
+DISTANCE = True
 
 
 def hankel(x: np.ndarray, n_delays: int) -> np.ndarray:
@@ -152,3 +157,41 @@ def dsa_matrix(
     fa = [havok(x, n_delays, rank) for x in xs.values()]
     fb = [havok(y, n_delays, rank) for y in ys.values()]
     return np.array([[procrustes(a, b, iters)[0] for b in fb] for a in fa])
+
+
+def trial_mask(mask: np.ndarray, minimum: int) -> tuple[np.ndarray, int]:
+    """For DSA: `mask` (episodes, time) cut to each episode's first L steps, L the shortest
+    episode's active length. Returns (the mask, L); `VnlError` if L < `minimum`."""
+    length = int(mask.sum(axis=1).min()) if mask.size else 0
+    if length < minimum:
+        raise VnlError(
+            f"DSA needs every episode to last at least {minimum} steps (n_delays + 2); the shortest lasts {length}: "
+            "record longer episodes or use fewer --delays"
+        )
+    out = np.zeros_like(mask)
+    out[:, :length] = True
+    return out & mask, length
+
+
+def label(options: Options) -> str:
+    return "DSA angular distance (rad)"
+
+
+def parameters(options: Options) -> dict[str, Any]:
+    return {"delays": options.delays, "rank": options.rank}
+
+
+def steps(mask: np.ndarray, options: Options) -> np.ndarray:
+    """Each episode's first steps, as many as the shortest episode has (time series of equal
+    length, the trials); `VnlError` when they are too short for the delays."""
+    return trial_mask(mask, options.delays + 2)[0]
+
+
+def matrix(a: dict[str, np.ndarray], b: dict[str, np.ndarray], options: Options) -> np.ndarray:
+    """DSA distances of every layer of `a` with every layer of `b`, each layer's (steps, units)
+    read as `options.trials` consecutive trials of equal length."""
+
+    def series(layers: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        return {k: v.reshape(options.trials, -1, v.shape[-1]) for k, v in layers.items()}
+
+    return dsa_matrix(series(a), series(b), options.delays, options.rank)
