@@ -22,14 +22,13 @@ from typing import Any
 import numpy as np
 
 from vnl import durable
-from vnl import recording as recordings
 from vnl.errors import VnlError
 from vnl.io import checkpoint
 from vnl.neuro import registry
 from vnl.neuro.cka import linear_cka
 from vnl.neuro.dsa import trial_mask
 from vnl.neuro.rsa import check_distance, rsa
-from vnl.recording import model
+from vnl.recording import formats, model
 from vnl.recording.model import subsample
 
 __all__ = [  # with the measures' functions the tutorials use from here (linear_cka, rsa, trial_mask)
@@ -212,7 +211,7 @@ def parse_source(text: str) -> Source:
 
     path = Path(text)
     if path.is_file():
-        ds = recordings.read(path)
+        ds = formats.read(path, formats.RUN_OR_RECORDING)
         try:
             step = int(ds.attrs["checkpoint_step"])
         except (KeyError, TypeError, ValueError):
@@ -253,7 +252,7 @@ def shared_recording(
 
     path = recording or next((s.recording for s in sources if s.recording is not None), None)
     if path is not None:
-        ds = recordings.read(path)
+        ds = formats.read(path)
         return ds, f"{path} ({ds.sizes['episode']} episodes)"
     run = load_run(sources[0].run_dir, step=sources[0].step)
     steps = steps or run.config.episode_length()

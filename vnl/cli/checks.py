@@ -59,6 +59,21 @@ def input_file(path: str, what: str) -> None:
         raise VnlError(f"cannot read {what} {path} (permission denied)")
 
 
+def recording(path: str, what: str = "recording", wants: str | None = None) -> None:
+    """A recording: an input file (`input_file`) that a reader of `vnl.recording` reads, told by
+    its content (an NWB file, another HDF5 or NetCDF file, a run's config: one line naming it and
+    what the command `wants`)."""
+    from vnl.recording import formats
+
+    input_file(path, what)
+    formats.readable(path, wants or formats.RECORDING)
+
+
+def beside(path: str | Path, name: str) -> Path:
+    """`name` in the folder of the file `path` (path arithmetic that also holds for `.` or `/`)."""
+    return Path(path).parent / name
+
+
 def read_only(path: Path) -> bool:
     """Whether `path` (an existing directory) is on a file system mounted read-only."""
     try:

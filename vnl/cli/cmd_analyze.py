@@ -60,19 +60,18 @@ def method_options(args: argparse.Namespace) -> registry.Options:
 
 def check(args: argparse.Namespace) -> None:
     checks.input_file(args.recording, "recording")
-    if Path(args.recording).suffix == ".nwb":
-        raise VnlError(f"{args.recording} is an NWB file; analyze the NetCDF recording (`vnl record` writes .nc)")
     if args.method != "pca" and args.color:
         raise VnlError("--color colours the PCA; use it with --method pca")
     # the default PCA layer's name is read from the recording: its folder is checked now
     _check_outputs(args, args.out or default_out(args))
+    checks.recording(args.recording)  # by its content: an NWB file, another HDF5 file, ...
 
 
 def default_out(args: argparse.Namespace, ds: Any = None) -> str:
     """Beside the recording: the method's name for it (`output_name`), e.g. pca_<layer>.png,
     decoding_<target>.png."""
     name = registry.analysis(args.method).output_name(method_options(args), ds)
-    return str(Path(args.recording).with_name(f"{name}.png"))
+    return str(checks.beside(args.recording, f"{name}.png"))
 
 
 def _check_outputs(args: argparse.Namespace, out: str | Path) -> None:

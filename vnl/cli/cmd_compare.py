@@ -13,6 +13,7 @@ from vnl import durable
 from vnl.cli import checks, options, process
 from vnl.errors import VnlError
 from vnl.neuro import registry
+from vnl.recording.formats import RUN_OR_RECORDING
 
 
 def add(sub: Any) -> None:
@@ -57,23 +58,29 @@ def method_options(args: argparse.Namespace) -> registry.Options:
     )  # fmt: skip
 
 
+def _run_dir(text: str) -> Path:
+    """The run directory of RUN_DIR or RUN_DIR@STEP (path arithmetic only; `.` and `/` stay)."""
+    path = Path(text)
+    if "@" in path.name and not path.exists():
+        return path.parent / path.name.rpartition("@")[0]
+    return path
+
+
 def check(args: argparse.Namespace) -> None:
     measure = registry.measure(measure_of(args))
     if hasattr(measure, "check"):
         measure.check(method_options(args))
     for text in args.networks:
-        path = Path(text)
-        run = path.with_name(path.name.rpartition("@")[0] or path.name)
-        if not path.exists() and not run.is_dir():
+        path, run = Path(text), _run_dir(text)
+        if path.is_file() or (path.is_symlink() and not path.exists()):
+            checks.recording(text, "network", RUN_OR_RECORDING)
+        elif run.is_dir():
+            checks.run_dir(str(run), "NETWORK")
+        else:
             raise VnlError(f"{text} is neither a run directory (RUN_DIR or RUN_DIR@STEP) nor a recording file")
-    recordings = _recordings(args)
-    if args.recording and not Path(args.recording).is_file():
-        checks.input_file(args.recording, "recording")  # missing, a directory, a pipe: one line
-    for path in recordings:
-        checks.input_file(path, "recording")
-    out = args.out or default_out(args)
-    if out is not None:  # else the first network is a recording: checked once its run is read
-        _check_outputs(Path(out), recordings, given=bool(args.out))
+    if args.recording:
+        checks.recording(args.recording)
+    _check_outputs(Path(args.out or default_out(args)), _recordings(args), given=bool(args.out))
 
 
 def _recordings(args: argparse.Namespace) -> list[str]:
@@ -81,17 +88,16 @@ def _recordings(args: argparse.Namespace) -> list[str]:
     return [n for n in [*args.networks, args.recording] if n and Path(n).is_file()]
 
 
-def default_out(args: argparse.Namespace) -> str | None:
-    """The default heatmap of a first network given as RUN_DIR or RUN_DIR@STEP; None for a
-    recording (its run is named inside it)."""
+def default_out(args: argparse.Namespace) -> str:
+    """<run>/compare_<measure>.png: the run of the first network (a recording's, read from its
+    attributes with h5py, before anything heavy is imported)."""
     first = Path(args.networks[0])
     if first.is_file():
-        return None
-    run_dir = (
-        first
-        if first.is_dir() or "@" not in first.name
-        else first.with_name(first.name.rpartition("@")[0] or first.name)
-    )
+        from vnl.recording import formats, model
+
+        run_dir = model.recorded_run(argparse.Namespace(attrs=formats.attributes(first)), first)
+    else:
+        run_dir = _run_dir(args.networks[0])
     return str(run_dir / f"compare_{measure_of(args)}.png")
 
 

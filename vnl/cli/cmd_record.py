@@ -53,12 +53,13 @@ def output_format(args: argparse.Namespace) -> str:
 def check(args: argparse.Namespace) -> None:
     output_format(args)
     if args.source:
-        checks.input_file(args.source, "recording")
+        checks.input_file(args.source, "--from")
         if args.run_dir:
             raise VnlError("give either RUN_DIR (record a run) or --from REC.nc (convert a recording), not both")
         if output_format(args) != "nwb":
             raise VnlError("--from converts a NetCDF recording to NWB; use --format nwb (or an --out ending in .nwb)")
         checks.output(args.out or default_out(args), (".nwb",), [args.source], given=bool(args.out))
+        checks.recording(args.source, "--from")  # by its content: already NWB, another HDF5 file, ...
         return
     if not args.run_dir:
         raise VnlError("give the run directory to record (or --from REC.nc to convert a recording)")

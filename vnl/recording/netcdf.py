@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from vnl import durable
-from vnl.errors import VnlError
+from vnl.errors import VnlError, storage_error
 from vnl.recording import model
 
 
@@ -22,12 +22,12 @@ def read(path: str | Path) -> Any:
     import xarray as xr
 
     path = Path(path)
-    if not path.is_file():
-        raise VnlError(f"recording not found: {path} (write one with `vnl record RUN_DIR`)")
     try:
         with xr.open_dataset(path, engine="h5netcdf") as ds:
             ds = ds.load()
-    except (OSError, ValueError) as e:
+    except Exception as e:  # noqa: BLE001 - a foreign or damaged file fails in the reader's own ways
+        if isinstance(e, MemoryError) or storage_error(e) is not None:
+            raise  # the machine failed, not the file: the CLI says so on one line
         first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
         raise VnlError(f"{path} is not a readable vnl recording: {first}") from None
     lack = model.missing(ds)
