@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 from recordings import E, T, synthetic  # tests/recordings.py
 
+from vnl.cli import main
 from vnl.errors import VnlError
 from vnl.neuro import decoding
 from vnl.recording import behaviour, model
@@ -40,3 +41,16 @@ def test_decoding_targets_and_errors():
     with pytest.raises(VnlError, match="at least 2 episodes"):
         decoding.decode(ds.isel(episode=[1]), "policy_hidden_1")
     assert model.last_hidden_layer(ds) == "policy_hidden_1"
+
+
+def test_a_constant_target_is_refused_not_scored_nan(tmp_path, capsys):
+    """Before: "held-out R² nan" printed and `NaN` written into the JSON (not JSON)."""
+    ds = synthetic()
+    ds["reward"] = ds["reward"] * 0 + 0.5
+    with pytest.raises(VnlError, match="the target reward is constant over the 880 usable steps .0.5."):
+        decoding.decode(ds, "policy_hidden_1", "reward", n_folds=3)
+    rec = tmp_path / "rec.nc"
+    ds.to_netcdf(rec, engine="h5netcdf")
+    assert main(["analyze", str(rec), "--method", "decoding", "--target", "reward"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "choose another --target" in err and not list(tmp_path.glob("*.json"))

@@ -7,6 +7,7 @@ from scipy.stats import ortho_group
 
 from vnl.errors import VnlError
 from vnl.neuro import dsa
+from vnl.neuro.registry import Options
 
 
 @pytest.mark.parametrize("a,b", [(0.3, 0.5), (0.2, 1.0), (0.4, -0.4)])
@@ -52,3 +53,21 @@ def test_hankel_embedding_and_havok_operator():
         s[:, t] = s[:, t - 1] @ a.T
     op = dsa.havok(s, n_delays=1, rank=2)
     np.testing.assert_allclose(np.sort_complex(np.linalg.eigvals(op)), np.sort_complex(np.linalg.eigvals(a)), atol=1e-8)
+
+
+def test_an_underdetermined_operator_is_refused_naming_the_rank_that_fits():
+    """Before: fewer transitions than the rank raised numpy's `LinAlgError: Singular matrix`; a
+    few more than the rank returned a distance fitted to noise, without a word."""
+    rng = np.random.default_rng(0)
+    x, y = rng.normal(size=(1, 8, 30)), rng.normal(size=(1, 8, 30))
+    with pytest.raises(VnlError, match="5 transitions cannot determine a rank-6 operator .* rank 2 or less"):
+        dsa.dsa(x, y, n_delays=3, rank=20)  # 6 delay-embedded steps: the rank is at most 6
+    x, y = rng.normal(size=(2, 12, 30)), rng.normal(size=(2, 12, 30))
+    with pytest.raises(VnlError, match="18 transitions cannot determine a rank-12 operator"):
+        dsa.dsa(x, y, n_delays=3, rank=12)  # 18 >= 12: solvable, but fitted to noise
+    assert np.isfinite(dsa.dsa(x, y, n_delays=3, rank=9))
+    # vnl compare refuses it from the recording's steps, before any network is run.
+    mask = np.ones((2, 12), bool)
+    with pytest.raises(VnlError, match="--rank 9"):
+        dsa.steps(mask, Options(delays=3, rank=12))
+    assert dsa.steps(mask, Options(delays=3, rank=9)).sum() == 24

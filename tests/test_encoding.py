@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from recordings import E, T, synthetic  # tests/recordings.py
 
+from vnl.errors import VnlError
 from vnl.neuro import encoding
 
 
@@ -21,3 +22,16 @@ def test_encoding_finds_the_planted_unit_and_nothing_else(tmp_path):
     assert out.stat().st_size > 5000
     doc = json.loads(json.dumps(result.to_json()))
     assert doc["layers"]["policy_hidden_0"]["r2"][0] == pytest.approx(r2[0])
+
+
+def test_layers_whose_every_unit_is_constant_are_refused():
+    """Before: every R² NaN, the summary "n/a" for each layer, and no sign of why."""
+    ds = synthetic()
+    ds["policy_hidden_0"] = ds["policy_hidden_0"] * 0
+    with pytest.raises(VnlError, match="every unit of policy_hidden_0 is constant"):
+        encoding.encode(ds, ["policy_hidden_0"], ["joint_angle"], n_folds=3)
+    # A constant unit among varying ones is scored as null.
+    ds = synthetic()
+    ds["policy_hidden_0"][..., 3] = 1.0
+    result = encoding.encode(ds, ["policy_hidden_0"], ["joint_angle"], n_folds=3)
+    assert result.to_json()["layers"]["policy_hidden_0"]["r2"][3] is None

@@ -105,3 +105,11 @@ def test_a_new_method_is_one_module_and_one_registry_line(tmp_path, monkeypatch,
     result = compare.compare(nets, "toy")
     assert result.pairs[(0, 1)][0, 0] == -1.0 and "difference of the means" in compare.table(result)
     sys.modules.pop("toy_analysis", None), sys.modules.pop("toy_measure", None)
+
+
+def test_results_are_strict_json_with_null_for_what_could_not_be_estimated():
+    def refuse(constant):
+        raise ValueError(f"not JSON: {constant}")
+
+    text = registry.json_text({"r2": float("nan"), "x": [1.0, float("inf"), {"y": np.float64("-inf")}], "n": 3})
+    assert json.loads(text, parse_constant=refuse) == {"r2": None, "x": [1.0, None, {"y": None}], "n": 3}

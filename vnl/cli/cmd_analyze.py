@@ -4,7 +4,6 @@ encoding, decoding, behavioural states) of a recording, each a PNG and a JSON fi
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 from typing import Any
 
@@ -89,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
     _check_outputs(args, out)
     result = method.analyze(ds, method_options(args))
     method.figure(result, out, float(ds.attrs.get("control_dt", 1.0)))
-    durable.write_atomic(out.with_suffix(".json"), json.dumps(result.to_json(), indent=1))
+    durable.write_atomic(out.with_suffix(".json"), registry.json_text(result.to_json()))
     print(method.report(result))
     print(f"wrote {out} and {out.with_suffix('.json')}")
     return 0

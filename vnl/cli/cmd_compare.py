@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 from pathlib import Path
 from typing import Any
 
@@ -126,6 +125,6 @@ def run(args: argparse.Namespace) -> int:
     result = compare.compare(nets, name, source=source, options=opts)
     print(compare.table(result))
     compare.heatmap(result, out)
-    durable.write_atomic(out.with_suffix(".json"), json.dumps(result.to_json(), indent=1))
+    durable.write_atomic(out.with_suffix(".json"), registry.json_text(result.to_json()))
     print(f"wrote {out} and {out.with_suffix('.json')}")
     return 0

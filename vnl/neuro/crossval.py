@@ -79,13 +79,45 @@ def control(s: Samples, kind: str, rng: np.random.Generator) -> np.ndarray:
     return order
 
 
+def varies(y: np.ndarray) -> np.ndarray:
+    """Per column of `y` (n, q): whether it varies enough for an R² (its sum of squares about its
+    mean above 1e-12 per sample; below, R² is 0/0)."""
+    return ((y - y.mean(0)) ** 2).sum(0) > 1e-12 * len(y)
+
+
 def r2(y: np.ndarray, pred: np.ndarray) -> np.ndarray:
     """Coefficient of determination per column of `y` (n, q) against `pred` (n, q), NaN for a
-    constant column: 1 - SSE / SST, SST about the column's mean."""
+    constant column (`varies`): 1 - SSE / SST, SST about the column's mean."""
     sst = ((y - y.mean(0)) ** 2).sum(0)
     sse = ((y - pred) ** 2).sum(0)
     with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(sst > 1e-12 * len(y), 1 - sse / sst, np.nan)
+        return np.where(varies(y), 1 - sse / sst, np.nan)
+
+
+def check_target(s: Samples, name: str) -> None:
+    """`VnlError` when the target `s.y` is constant over the usable steps: no R² can be estimated."""
+    if varies(s.y).any():
+        return
+    value = ", ".join(f"{v:g}" for v in s.y[0]) if len(s.y) else "none"
+    raise VnlError(
+        f"the target {name} is constant over the {len(s.y)} usable steps ({value}): there is nothing to decode; "
+        "choose another --target (e.g. forward_speed, joint:<name>) or record episodes in which it changes"
+    )
+
+
+def check_classes(labels: np.ndarray, episode: np.ndarray, n_folds: int, what: str, fix: str) -> None:
+    """`VnlError` unless the training episodes of every fold (scikit-learn's `GroupKFold` by
+    `episode`, `n_folds`) hold at least two of the classes `labels`: a classifier cannot be
+    fitted on one class. `what` names the classes, `fix` says what to change."""
+    from sklearn.model_selection import GroupKFold
+
+    for i, (train, _) in enumerate(GroupKFold(n_folds).split(labels, labels, episode)):
+        present = np.unique(labels[train])
+        if len(present) < 2:
+            raise VnlError(
+                f"the training episodes of fold {i + 1} of {n_folds} hold only {what} {present[0]} "
+                f"({len(train)} steps): a classifier needs at least two; {fix}"
+            )
 
 
 ALPHAS = np.logspace(-2, 6, 17)  # ridge penalties, on standardised features

@@ -49,7 +49,7 @@ class Decoding:
             "layer": self.layer,
             "units": self.units,
             "target": self.target,
-            "r2": self.r2,
+            "r2": self.r2,  # finite: `decode` refuses a target it cannot score
             "control": self.control,
             "control_r2_mean": float(np.mean(self.control_r2)),
             "control_r2_std": float(np.std(self.control_r2)),
@@ -82,6 +82,7 @@ def decode(
     y, labels = behaviour.target(ds, target)
     s = cv.samples(ds, model.activity(ds, layer), y, [], labels)
     k = cv.folds(s, n_folds)
+    cv.check_target(s, target)
     pred = cv.ridge_predict(s.x, s.y, s.episode, k)
     rng = np.random.default_rng(seed)
     ctrl = []

@@ -21,6 +21,12 @@ reflection), and here also from a few random orthogonal starts (the objective ha
 keeping the best. dsa-metric parameterises SO(n) with a Cayley map through a small network; the
 matrix exponential here reaches all of SO(n). benchmarks/dsa_check.py compares both on the same
 systems (docs/how-to/neurophysiology.md).
+
+The operator is fitted only where it is determined: r coefficients per row from N transitions
+(trials x (Hankel rows - 1)) need N >= 2r, as many residual degrees of freedom as coefficients;
+below N = r the fit is singular, and just above it the operator reproduces the noise of its few
+transitions, so the distances would mean nothing. `check_transitions` refuses such a fit, naming
+the rank that would fit.
 """
 
 from __future__ import annotations
@@ -59,14 +65,33 @@ def havok(x: np.ndarray, n_delays: int = 10, rank: int = 20, ridge: float = 0.0)
     k, t, d = h.shape
     _, s, vt = np.linalg.svd(h.reshape(k * t, d).T, full_matrices=False)
     r = int(min(rank, np.sum(s > s[0] * 1e-12)))
+    check_transitions(k * (t - 1), r)
     v = vt.T[:, :r]
     # Singular vectors have arbitrary signs: make each column's largest entry positive, so that
     # systems that differ only by a rotation of their units get the same coordinates.
     v = v * np.sign(v[np.argmax(np.abs(v), axis=0), np.arange(r)])
     v = v.reshape(k, t, r)
     before, after = v[:, :-1].reshape(-1, r), v[:, 1:].reshape(-1, r)
-    a = np.linalg.solve(before.T @ before + ridge * np.eye(r), before.T @ after)
+    try:
+        a = np.linalg.solve(before.T @ before + ridge * np.eye(r), before.T @ after)
+    except np.linalg.LinAlgError:
+        raise VnlError(
+            f"DSA: the {r} delay coordinates of {k * (t - 1)} transitions are collinear; use a lower rank (--rank)"
+        ) from None
     return a.T
+
+
+def check_transitions(transitions: int, rank: int) -> None:
+    """`VnlError` unless `transitions` (trials x (Hankel rows - 1)) determine a rank-`rank`
+    operator (at least 2 x rank: see the module docstring), naming the rank that would fit."""
+    if transitions >= 2 * rank:
+        return
+    fits = transitions // 2
+    fix = f"use rank {fits} or less (--rank {fits}), " if fits >= 1 else ""
+    raise VnlError(
+        f"DSA: {transitions} transitions cannot determine a rank-{rank} operator (it needs at least {2 * rank}, "
+        f"2 x rank); {fix}fewer delays (--delays) or more or longer episodes"
+    )
 
 
 def _pad(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -183,8 +208,11 @@ def parameters(options: Options) -> dict[str, Any]:
 
 def steps(mask: np.ndarray, options: Options) -> np.ndarray:
     """Each episode's first steps, as many as the shortest episode has (time series of equal
-    length, the trials); `VnlError` when they are too short for the delays."""
-    return trial_mask(mask, options.delays + 2)[0]
+    length, the trials); `VnlError` when they are too short for the delays or too few for the
+    rank (`check_transitions`)."""
+    mask, length = trial_mask(mask, options.delays + 2)
+    check_transitions(int(mask.any(axis=1).sum()) * (length - options.delays), options.rank)
+    return mask
 
 
 def matrix(a: dict[str, np.ndarray], b: dict[str, np.ndarray], options: Options) -> np.ndarray:

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from vnl import durable
+from vnl.errors import VnlError
 from vnl.neuro import crossval as cv
 from vnl.neuro.registry import Options
 from vnl.recording import behaviour, model
@@ -100,10 +101,15 @@ def encode(
         model.check_layer(ds, layer)
     cv.check_control(control)
     x, labels = behaviour.features(ds, features or list(behaviour.ENCODING_FEATURES))
+    per_layer = {layer: cv.samples(ds, x, model.activity(ds, layer), labels, []) for layer in layers}
+    if not any(cv.varies(s.y).any() for s in per_layer.values() if len(s.y)):
+        raise VnlError(
+            f"every unit of {', '.join(layers)} is constant over the usable steps: no encoding model can be "
+            "scored; choose other layers (--layer) or record episodes in which the network's activity changes"
+        )
     r2, ctrl = {}, {}
     n = episodes = 0
-    for layer in layers:
-        s = cv.samples(ds, x, model.activity(ds, layer), labels, [])
+    for layer, s in per_layer.items():
         r2[layer], ctrl[layer] = encode_arrays(s.x, s.y, s.episode, n_folds, control, seed)
         n, episodes = len(s.episode), len(np.unique(s.episode))
     k = min(n_folds, episodes)

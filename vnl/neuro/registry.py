@@ -11,7 +11,8 @@ An analysis (`vnl analyze`: one recording) is a module that defines
     figure(result, out: Path, dt: float) -> Path
     output_name(options: Options, ds=None) -> str    the default figure's name, without its suffix
 
-and whose result has `to_json() -> dict`, written beside the figure.
+and whose result has `to_json() -> dict`, written beside the figure (`json_text`: NaN and
+infinities become null).
 
 A measure (`vnl compare`: the layers of two networks on the same steps) is a module that defines
 
@@ -31,6 +32,7 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
+import json
 import math
 from types import ModuleType
 from typing import Any
@@ -114,3 +116,8 @@ def finite(value: Any) -> Any:
     if isinstance(value, list | tuple):
         return [finite(v) for v in value]
     return value
+
+
+def json_text(doc: dict[str, Any]) -> str:
+    """A result's JSON document as text: strict JSON (`finite`), indented."""
+    return json.dumps(finite(doc), indent=1, allow_nan=False)

@@ -133,6 +133,20 @@ def _state_accuracy(x: np.ndarray, labels: np.ndarray, episode: np.ndarray, k: i
     return float(balanced_accuracy_score(labels, pred))
 
 
+def _check_decodable(labels: np.ndarray, episode: np.ndarray, folds: int, method: str, k: int) -> None:
+    """`VnlError` unless the state can be decoded by episode-wise cross-validation: two states or
+    more, and two or more in the training episodes of every fold (the control's labels move
+    within episodes, so its folds hold the same states)."""
+    if k < 2:
+        other = "kmeans" if method == "hmm" else "hmm"
+        raise VnlError(
+            f"the {method} segmentation put all {len(labels)} steps in one state: there is no state to decode; "
+            f"try --segmentation {other}, or record more varied episodes"
+        )
+    fix = "use fewer --folds or fewer --states, or record more episodes (vnl record --episodes)"
+    cv.check_classes(labels, episode, folds, "state", fix)
+
+
 def states(
     ds: Any,
     k: int = 4,
@@ -155,15 +169,13 @@ def states(
     lengths = [int((s.episode == e).sum()) for e in np.unique(s.episode)]  # samples are episode-major
     labels = segment(_pca(s.x, components), lengths, k, method, seed)
     k = int(labels.max()) + 1
+    _check_decodable(labels, s.episode, folds, method, k)
     keep = (s.episode, s.time)
     means, acc, ctrl = {}, {}, {}
     order = cv.control(s, control, np.random.default_rng(seed))
     for layer in layers:
         act = model.activity(ds, layer)[keep]
         means[layer] = np.stack([act[labels == j].mean(0) for j in range(k)])
-        if len(np.unique(labels)) < 2:
-            acc[layer] = ctrl[layer] = float("nan")
-            continue
         acc[layer] = _state_accuracy(act, labels, s.episode, folds)
         ctrl[layer] = _state_accuracy(act, labels[order], s.episode, folds)
     state_features = np.stack([s.x[labels == j].mean(0) for j in range(k)])
