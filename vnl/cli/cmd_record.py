@@ -58,8 +58,8 @@ def check(args: argparse.Namespace) -> None:
             raise VnlError("give either RUN_DIR (record a run) or --from REC.nc (convert a recording), not both")
         if output_format(args) != "nwb":
             raise VnlError("--from converts a NetCDF recording to NWB; use --format nwb (or an --out ending in .nwb)")
-        checks.output(args.out or default_out(args), (".nwb",), [args.source], given=bool(args.out))
         checks.recording(args.source, "--from")  # by its content: already NWB, another HDF5 file, ...
+        checks.output(args.out or default_out(args), (".nwb",), [args.source], given=bool(args.out))
         return
     if not args.run_dir:
         raise VnlError("give the run directory to record (or --from REC.nc to convert a recording)")
