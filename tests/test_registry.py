@@ -104,7 +104,8 @@ def test_a_new_method_is_one_module_and_one_registry_line(tmp_path, monkeypatch,
     nets = [compare.Network(n, tmp_path, 0, n, {"h": x + i}) for i, n in enumerate("ab")]
     result = compare.compare(nets, "toy")
     assert result.pairs[(0, 1)][0, 0] == -1.0 and "difference of the means" in compare.table(result)
-    sys.modules.pop("toy_analysis", None), sys.modules.pop("toy_measure", None)
+    for name in ("toy_analysis", "toy_measure"):
+        sys.modules.pop(name, None)
 
 
 def test_results_are_strict_json_with_null_for_what_could_not_be_estimated():
