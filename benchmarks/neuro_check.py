@@ -182,7 +182,7 @@ def read_pynwb(path: Path, ds: Any) -> dict[str, Any]:
     import ndx_pose  # noqa: F401  (registers the PoseEstimation types with pynwb)
     from pynwb import NWBHDF5IO
 
-    from vnl.neuro.features import last_hidden_layer
+    from vnl.recording.model import last_hidden_layer
 
     rows = active_rows(ds)
     names = [str(b) for b in ds["body"].values]

@@ -524,10 +524,9 @@ def _run_case(template: Path, where: Path, ro: Path, case: Case) -> str | None:
     return "; ".join(problems) or None
 
 
-def test_generated_fuzz_of_values_shapes_files_and_outputs(tmp_path):
-    """At least 200 generated cases (issue 47): non-finite and huge numbers, seeds, section
-    shapes, names, non-string keys, depth, alias bombs, file and input types, read-only outputs,
-    overwrites, long paths, MUJOCO_GL."""
+def _run_all(tmp_path: Path, make_cases, minimum: int) -> None:
+    """Runs the cases `make_cases(ro)` in sandboxes of the fuzz fixtures, two at a time, with a
+    read-only bind mount `ro` holding a run and a recording; fails naming every case that failed."""
     from fsutil import read_only
 
     template = tmp_path / "template"
@@ -537,8 +536,8 @@ def test_generated_fuzz_of_values_shapes_files_and_outputs(tmp_path):
     ro.mkdir()
     shutil.copytree(template / "run", ro / "run")
     shutil.copy(template / "rec.nc", ro / "rec.nc")
-    cases = generated_cases(ro)
-    assert len(cases) >= 200, len(cases)
+    cases = make_cases(ro)
+    assert len(cases) >= minimum, len(cases)
     start = time.monotonic()
     with read_only(ro):
         with ThreadPoolExecutor(max_workers=2) as pool:
@@ -552,3 +551,125 @@ def test_generated_fuzz_of_values_shapes_files_and_outputs(tmp_path):
     ]
     print(f"{len(cases)} cases in {time.monotonic() - start:.0f} s")
     assert not failures, f"{len(failures)} of {len(cases)}:\n" + "\n".join(failures[:40])
+
+
+def test_generated_fuzz_of_values_shapes_files_and_outputs(tmp_path):
+    """At least 200 generated cases (issue 47): non-finite and huge numbers, seeds, section
+    shapes, names, non-string keys, depth, alias bombs, file and input types, read-only outputs,
+    overwrites, long paths, MUJOCO_GL."""
+    _run_all(tmp_path, generated_cases, 200)
+
+
+# --- every input and output of the recording commands (issue 53) -----------------------------------
+#
+# Each file a command that reads a recording may be given (record --from, analyze, compare, view):
+# NWB (also named .nc, or .NWB), other HDF5, NetCDF-3, a NetCDF-4 file that is not a recording,
+# empty, text, damaged HDF5, links to them, to nothing, in a loop, to a directory, `.` and `..`;
+# and each output as a link to nothing, a loop, a directory or a file of another type. Each is
+# refused by the CLI's checks, before JAX, with its reason.
+
+FOREIGN = [  # file in the sandbox, the reason in the error line
+    ("session.nwb", "an nwb file (nwb 2."),
+    ("SESSION.NWB", "an nwb file"),
+    ("lab.nc", "an nwb file"),
+    ("nwb_link.nc", "an nwb file"),
+    ("foreign.h5", "neither netcdf-4 nor nwb"),
+    ("classic.nc", "netcdf-3"),
+    ("rec_no_layers.nc", "no network layers"),
+    ("empty.nc", "an empty file"),
+    ("rec_bad.nc", "neither hdf5 nor netcdf"),
+    ("damaged.nc", "a damaged hdf5 file"),
+    ("dangling.yaml", "symbolic link to nothing"),
+    ("loop.yaml", "symbolic link to nothing"),
+]
+
+
+def _recording_fixtures(root: Path) -> None:
+    """Files of other kinds than a recording, links, and outputs that are links, beside the fuzz
+    fixtures (`_fuzz_fixtures`)."""
+    from datetime import UTC, datetime
+
+    import h5py
+    import xarray as xr
+    from pynwb import NWBHDF5IO, NWBFile, TimeSeries
+
+    session = NWBFile(session_description="a session", identifier="x", session_start_time=datetime.now(UTC))
+    session.add_acquisition(TimeSeries(name="lfp", data=np.zeros(10), unit="V", rate=1000.0))
+    with NWBHDF5IO(str(root / "session.nwb"), "w") as io:
+        io.write(session)
+    for copy in ("SESSION.NWB", "lab.nc"):
+        shutil.copy(root / "session.nwb", root / copy)
+    with h5py.File(root / "foreign.h5", "w") as f:
+        f["x"] = np.arange(5)
+    xr.Dataset({"a": ("x", np.arange(3))}).to_netcdf(root / "classic.nc", engine="scipy")
+    (root / "empty.nc").write_bytes(b"")
+    (root / "damaged.nc").write_bytes(b"\x89HDF\r\n\x1a\n" + b"\0" * 200)
+    for link, target in {
+        "nwb_link.nc": "session.nwb",
+        "dir_link": "a_dir",
+        "dangling_out.png": "missing_dir/x.png",
+        "dangling_out.rrd": "nowhere.rrd",
+        "dangling_out.nwb": "nowhere.nwb",
+        "dangling_out.nc": "nowhere.nc",
+        "ok.rrd": "nowhere_else.rrd",
+        "loop_out.png": "loop_out.png",
+        "to_text.png": "afile.txt",
+        "dir_link.rrd": "a_dir",
+    }.items():
+        (root / link).symlink_to(target)
+
+
+def recording_cases(ro: Path) -> list[Case]:
+    """The recording commands' inputs and outputs (see above)."""
+    cases: list[Case] = []
+    for name, expect in FOREIGN:
+        for argv in (
+            ["analyze", name],
+            ["analyze", name, "--method", "states"],
+            ["view", name],
+            ["record", "--from", name],
+            ["compare", name, "run"],
+            ["compare", "run", "run", "--recording", name],
+        ):
+            cases.append(Case("recording inputs", argv, expect))
+    for path in (".", "..", "a_dir", "dir_link"):
+        cases += [
+            Case("directories as inputs", ["analyze", path], "is a directory"),
+            Case("directories as inputs", ["record", "--from", path], "is a directory"),
+            Case("directories as inputs", ["compare", "run", "run", "--recording", path], "is a directory"),
+            Case("directories as inputs", ["view", path], "not a vnl run directory"),
+            Case("directories as inputs", ["compare", path, "run"], "not a vnl run directory"),
+        ]
+    cases.append(Case("directories as inputs", ["view", "rec.nc", "--step", "0"], "a recording was given"))
+    for argv, expect in (
+        (["analyze", "rec.nc", "--out", "dangling_out.png"], "symbolic link to nothing"),
+        (["analyze", "rec.nc", "--method", "encoding", "--out", "loop_out.png"], "symbolic link to nothing"),
+        (["analyze", "rec.nc", "--out", "to_text.png"], "links to"),
+        (["analyze", "rec.nc", "--out", "dir_link"], "is a directory"),
+        (["view", "rec.nc", "--out", "dangling_out.rrd"], "symbolic link to nothing"),
+        (["view", "rec.nc", "--out", "dir_link.rrd"], "is a directory"),
+        (["view", "run", "--out", "dangling_out.rrd"], "symbolic link to nothing"),
+        (["record", "--from", "rec.nc", "--out", "dangling_out.nwb"], "symbolic link to nothing"),
+        (["record", "run", "--out", "dangling_out.nc"], "symbolic link to nothing"),
+        (["record", "run", "--viewer", "--out", "ok.nc"], "symbolic link to nothing"),  # ok.rrd: a link to nothing
+        (["compare", "run", "run", "--out", "dangling_out.png"], "symbolic link to nothing"),
+        (["compare", "run", "run", "--out", "to_text.png"], "links to"),
+        (["compare", "rec.nc", "run"], "does not say which run"),  # its default output is beside that run
+        (["compare", "run", "run", "--out", f"{ro}/x.png"], "read-only"),
+        (["view", "rec.nc", "--out", f"{ro}/x.rrd"], "read-only"),
+        (["record", "--from", "rec.nc", "--out", f"{ro}/x.nwb"], "read-only"),
+        (["analyze", "rec.nc", "--method", "decoding", "--out", f"{ro}/d.png"], "read-only"),
+    ):
+        cases.append(Case("recording outputs", argv, expect))
+    return cases
+
+
+def test_generated_fuzz_of_recording_inputs_and_outputs(tmp_path):
+    """Every input and output of record, analyze, compare and view (issue 53): foreign HDF5, NWB,
+    links, directories; each refused before JAX with its reason, nothing changed."""
+
+    def make_cases(ro: Path) -> list[Case]:
+        _recording_fixtures(tmp_path / "template")
+        return recording_cases(ro)
+
+    _run_all(tmp_path, make_cases, 100)

@@ -13,7 +13,6 @@ import mujoco
 import numpy as np
 import pytest
 
-from vnl import analysis
 from vnl import typed_config as config_lib
 from vnl.errors import VnlError
 from vnl.io import checkpoint
@@ -224,29 +223,6 @@ def test_presets_and_config_mappings_are_frozen_copies():
     assert type(config_lib.to_dict(cfg)["env_config"]) is dict  # YAML-safe
 
 
-# --- recordings ---------------------------------------------------------------------------------
-
-
-def _recording(tmp_path, layers):
-    import xarray as xr
-
-    data = {"active": (("episode", "time"), np.ones((1, 20))), "reward": (("episode", "time"), np.zeros((1, 20)))}
-    for name, units in layers.items():
-        data[name] = (("episode", "time", f"{name}_unit"), np.random.default_rng(0).normal(size=(1, 20, units)))
-    path = tmp_path / "r.nc"
-    xr.Dataset(data, coords={"time": np.arange(20) * 0.1}).to_netcdf(path, engine="h5netcdf")
-    return path
-
-
-def test_analyze_refuses_a_one_unit_layer_and_a_file_without_layers(tmp_path):
-    ds = analysis.open_recording(_recording(tmp_path, {"policy_hidden_0": 4, "value_output": 1}))
-    with pytest.raises(VnlError, match="1 unit; a PCA needs at least 2: use one of policy_hidden_0"):
-        analysis.pca_figure(ds, "value_output", "reward", tmp_path / "pca.png")
-    assert analysis.default_layer(ds) == "policy_hidden_0"
-    with pytest.raises(VnlError, match="no network layers"):
-        analysis.open_recording(_recording(tmp_path, {}))
-
-
 # --- other libraries' private APIs, each used in one place ----------------------------------------
 
 
@@ -289,23 +265,6 @@ def test_with_model_steps_a_copy_and_leaves_the_env_alone():
     copy = env.with_model(heavier)
     assert copy.mjx_model is heavier and env.mjx_model is not heavier
     assert type(copy) is type(env) and copy.config is env.config
-
-
-def test_a_pixel_env_s_observation_is_recorded_as_state_and_images():
-    """`vnl record` on a --vision run: the dict observation becomes the labelled state and one
-    (episode, time, row, column, channel) array per camera (it assumed a flat observation)."""
-    from vnl.record import _observation_variables
-
-    class Env:
-        def observation_layout(self):
-            return [("joints", 2), ("gyro", 1), ("pixels/egocentric (uint8 4x4x3)", 48)]
-
-    obs = {"state": np.zeros((5, 2, 3)), "pixels/egocentric": np.zeros((5, 2, 4, 4, 3), np.uint8)}
-    data, labels = _observation_variables(Env(), obs)
-    assert labels == ["joints[0]", "joints[1]", "gyro[0]"]
-    assert data["observation"][1].shape == (2, 5, 3)  # (episode, time, feature)
-    dims, image = data["pixels_egocentric"]
-    assert dims == ("episode", "time", "pixel_row", "pixel_column", "channel") and image.shape == (2, 5, 4, 4, 3)
 
 
 # --- permissions --------------------------------------------------------------------------------

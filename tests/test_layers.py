@@ -4,7 +4,11 @@ the code cannot drift apart."""
 
 import ast
 import re
+import subprocess
+import sys
 from pathlib import Path
+
+import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "vnl"
@@ -111,6 +115,38 @@ def test_the_checks_catch_an_upward_import_and_a_cycle():
     assert top["vnl.cli"] < top["vnl.train"] < top["vnl.envs"] < top["vnl.tasks"] < top["vnl.walkers"]
 
 
+def test_no_function_is_over_80_lines():
+    long = [
+        f"{p.relative_to(ROOT)}:{node.lineno} {node.name} ({node.end_lineno - node.lineno + 1} lines)"
+        for p in PACKAGE.rglob("*.py")
+        for node in ast.walk(ast.parse(p.read_text()))
+        if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef) and node.end_lineno - node.lineno + 1 > 80
+    ]
+    assert not long, long
+
+
 def test_no_module_is_over_500_lines():
     long = {str(p.relative_to(ROOT)): n for p in PACKAGE.rglob("*.py") if (n := len(p.read_text().splitlines())) > 500}
     assert not long, long
+
+
+HEAVY = ("pynwb", "hdmf", "ndx_pose", "nwbinspector", "pynapple", "sklearn", "rsatoolbox", "hmmlearn")
+
+
+@pytest.mark.slow
+def test_vnl_train_imports_none_of_the_neuroscience_tools():
+    # What `vnl train` imports: the CLI with every subcommand's parser, the train command and all
+    # that training loads, an env built and stepped.
+    code = (
+        "import sys\n"
+        "from vnl.cli import build_parser\n"
+        "import vnl.cli.cmd_train, vnl.train.trainer, vnl.train.session, vnl.train.distributed\n"
+        "import vnl.policy, vnl.rollout, vnl.envs.registry\n"
+        "from vnl.train import config\n"
+        "env = config.build('rodent_run', 'tiny', assignments=['env_config.impl=c']).make_env()\n"
+        "build_parser().parse_args(['train', 'rodent_run'])\n"
+        f"print(sorted(m for m in {HEAVY!r} if m in sys.modules))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip().splitlines()[-1] == "[]"

@@ -2,19 +2,10 @@
 
 Every network is run on the same observations — the episodes of one recording (`vnl record`) —
 and the activity of each of its layers on those steps is compared with each layer of every other
-network:
-
-- linear CKA (centered kernel alignment, Kornblith et al. 2019): for activity matrices X (n, p)
-  and Y (n, q) with centred columns, ||YᵀX||²_F / (||XᵀX||_F ||YᵀY||_F); 1 when one is a
-  rotation (or isotropic scaling) of the other, near 0 for unrelated representations;
-- RSA (representational similarity analysis): the Spearman correlation of the two layers'
-  representational dissimilarity matrices (pairwise distances between the n steps, any
-  `scipy.spatial.distance.pdist` metric: correlation, euclidean, cosine, ...);
-- `rdm`: the same RDMs made and compared with rsatoolbox (`vnl.neuro.similarity`: its
-  dissimilarities and comparison methods: cosine, corr, spearman, tau-a, ...);
-- `dsa`: Dynamical Similarity Analysis (`vnl.neuro.dsa`), on time series: each episode's first
-  steps (as many as the shortest episode has) are the trials; an angular distance, 0 for the same
-  dynamics.
+network, by one of the measures of `vnl.neuro.registry.MEASURES`: linear CKA (`vnl.neuro.cka`),
+RSA (`vnl.neuro.rsa`), rsatoolbox's RDM comparisons (`vnl.neuro.rdm`) or Dynamical Similarity
+Analysis (`vnl.neuro.dsa`, on time series: each episode's first steps, as many as the shortest
+episode has, are the trials).
 
 Runs whose configs differ only in seed (and logging) are one model trained several times: their
 pairs are reported separately, as the similarity of that model to itself across seeds — the
@@ -33,59 +24,17 @@ import numpy as np
 from vnl import durable
 from vnl.errors import VnlError
 from vnl.io import checkpoint
+from vnl.neuro import registry
+from vnl.neuro.cka import linear_cka
+from vnl.neuro.dsa import trial_mask
+from vnl.neuro.rsa import check_distance, rsa
+from vnl.recording import formats, model
+from vnl.recording.model import subsample
 
-MEASURES = ("cka", "rsa", "rdm", "dsa")
-LABELS = {"cka": "linear CKA", "rsa": "RSA", "rdm": "RDM comparison", "dsa": "DSA angular distance (rad)"}
-
-
-def linear_cka(x: np.ndarray, y: np.ndarray) -> float:
-    """Linear CKA of activity matrices x (n, p) and y (n, q) over the same n samples."""
-    x = np.asarray(x, np.float64)
-    y = np.asarray(y, np.float64)
-    if x.ndim != 2 or y.ndim != 2 or x.shape[0] != y.shape[0]:
-        raise VnlError(f"CKA needs two (samples, units) matrices with the same samples, got {x.shape} and {y.shape}")
-    x = x - x.mean(axis=0)
-    y = y - y.mean(axis=0)
-    cross = np.linalg.norm(y.T @ x) ** 2
-    norm = np.linalg.norm(x.T @ x) * np.linalg.norm(y.T @ y)
-    return float(cross / norm) if norm > 0 else float("nan")
-
-
-def rsa(x: np.ndarray, y: np.ndarray, distance: str = "correlation") -> float:
-    """Spearman correlation between the representational dissimilarity matrices of x (n, p) and
-    y (n, q): `scipy.spatial.distance.pdist(·, distance)` over the n samples."""
-    from scipy.spatial.distance import pdist
-    from scipy.stats import spearmanr
-
-    with np.errstate(invalid="ignore", divide="ignore"):
-        a = pdist(np.asarray(x, np.float64), distance)
-        b = pdist(np.asarray(y, np.float64), distance)
-    ok = np.isfinite(a) & np.isfinite(b)  # e.g. the correlation distance of a constant row
-    if ok.sum() < 3:
-        return float("nan")
-    return float(spearmanr(a[ok], b[ok]).statistic)
-
-
-def similarity(x: np.ndarray, y: np.ndarray, measure: str = "cka", distance: str = "correlation") -> float:
-    """`linear_cka` or `rsa` (with `distance`) of two activity matrices."""
-    if measure == "cka":
-        return linear_cka(x, y)
-    if measure == "rsa":
-        return rsa(x, y, distance)
-    raise VnlError(f"unknown similarity measure {measure!r}; choose one of {', '.join(MEASURES)}")
-
-
-def check_distance(distance: str) -> None:
-    """`VnlError` unless `distance` is a metric `scipy.spatial.distance.pdist` knows."""
-    from scipy.spatial.distance import pdist
-
-    try:
-        pdist(np.eye(3), distance)
-    except ValueError:
-        raise VnlError(
-            f"unknown distance {distance!r} for RSA; e.g. correlation, euclidean, cosine, cityblock "
-            "(any metric of scipy.spatial.distance.pdist)"
-        ) from None
+__all__ = [  # with the measures' functions the tutorials use from here (linear_cka, rsa, trial_mask)
+    "Comparison", "Network", "Source", "check_distance", "compare", "heatmap", "linear_cka", "names",
+    "network", "observations", "parse_source", "rsa", "shared_recording", "subsample", "table", "trial_mask",
+]  # fmt: skip
 
 
 @dataclasses.dataclass
@@ -107,17 +56,18 @@ class Comparison:
     Attributes:
       networks: the compared networks (activity dropped after the comparison).
       pairs: (i, j) -> matrix (layers of i, layers of j) of similarities.
-      measure, distance: how they were computed; samples: n steps compared.
-      source: where the observations came from.
+      measure: its name (`vnl.neuro.registry.MEASURES`); label: what the numbers are;
+      options: the measure's options; samples: n steps compared; source: where the
+      observations came from.
     """
 
     networks: list[Network]
     pairs: dict[tuple[int, int], np.ndarray]
     measure: str
-    distance: str | None
+    label: str
+    options: registry.Options
     samples: int
     source: str
-    comparison: str | None = None  # rdm: rsatoolbox's comparison method
 
     def layer_names(self, i: int) -> list[str]:
         return list(self.networks[i].layers)
@@ -128,10 +78,15 @@ class Comparison:
         return a.group == b.group and a.seed != b.seed
 
     def to_json(self) -> dict[str, Any]:
+        """The comparison as a JSON document (a similarity that could not be computed, e.g. for a
+        constant layer, is null)."""
+        module = registry.measure(self.measure)
+        parameters = module.parameters(self.options) if hasattr(module, "parameters") else {}
         return {
             "measure": self.measure,
-            "distance": self.distance,
-            "rdm_comparison": self.comparison,
+            "distance": None,
+            "rdm_comparison": None,
+            **parameters,
             "samples": self.samples,
             "observations": self.source,
             "networks": [{"name": n.name, "run_dir": str(n.run_dir), "step": n.step} for n in self.networks],
@@ -142,15 +97,11 @@ class Comparison:
                     "across_seeds": self.same_seed_group(i, j),
                     "layers_a": self.layer_names(i),
                     "layers_b": self.layer_names(j),
-                    "similarity": [[_finite(v) for v in row] for row in m],
+                    "similarity": registry.finite(m.tolist()),
                 }
                 for (i, j), m in self.pairs.items()
             ],
         }
-
-
-def _finite(v: float) -> float | None:
-    return float(v) if np.isfinite(v) else None
 
 
 def compare(
@@ -162,59 +113,28 @@ def compare(
     trials: int = 1,
     n_delays: int = 10,
     rank: int = 20,
+    options: registry.Options | None = None,
 ) -> Comparison:
-    """Similarity of every layer of network i to every layer of network j, for all pairs i < j.
-    `rdm` uses `distance` and rsatoolbox's `comparison`; `dsa` reads each layer's (samples, units)
-    as `trials` consecutive trials of equal length, with `n_delays` and `rank`."""
-    if measure not in MEASURES:
-        raise VnlError(f"unknown similarity measure {measure!r}; choose one of {', '.join(MEASURES)}")
+    """Similarity of every layer of network i to every layer of network j, for all pairs i < j,
+    by `measure` (`vnl.neuro.registry.MEASURES`). `rdm` uses `distance` and rsatoolbox's
+    `comparison`; `dsa` reads each layer's (samples, units) as `trials` consecutive trials of
+    equal length, with `n_delays` and `rank`. `options` (the CLI's) replaces those arguments."""
+    module = registry.measure(measure)
+    if options is None:
+        options = registry.Options(distance=distance, comparison=comparison, trials=trials, delays=n_delays, rank=rank)
+    if hasattr(module, "check"):
+        module.check(options)
     pairs = {}
     for i, j in itertools.combinations(range(len(networks)), 2):
-        a, b = networks[i].layers, networks[j].layers
-        if measure == "rdm":
-            from vnl.neuro import similarity as rdm
-
-            pairs[(i, j)] = rdm.compare_layers(a, b, distance, comparison)
-        elif measure == "dsa":
-            from vnl.neuro import dsa
-
-            def series(layers: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-                return {k: v.reshape(trials, -1, v.shape[-1]) for k, v in layers.items()}
-
-            pairs[(i, j)] = dsa.dsa_matrix(series(a), series(b), n_delays, rank)
-        else:
-            pairs[(i, j)] = np.array([[similarity(x, y, measure, distance) for y in b.values()] for x in a.values()])
+        pairs[(i, j)] = module.matrix(networks[i].layers, networks[j].layers, options)
     n = next(iter(networks[0].layers.values())).shape[0] if networks else 0
-    dist = distance if measure in ("rsa", "rdm") else None
-    return Comparison(networks, pairs, measure, dist, n, source, comparison if measure == "rdm" else None)
-
-
-def _label(result: Comparison) -> str:
-    if result.measure == "rsa":
-        return f"RSA (Spearman of {result.distance} RDMs)"
-    if result.measure == "rdm":
-        return f"rsatoolbox {result.comparison} of {result.distance} RDMs"
-    return LABELS[result.measure]
-
-
-def trial_mask(mask: np.ndarray, minimum: int) -> tuple[np.ndarray, int]:
-    """For DSA: `mask` (episodes, time) cut to each episode's first L steps, L the shortest
-    episode's active length. Returns (the mask, L); `VnlError` if L < `minimum`."""
-    length = int(mask.sum(axis=1).min()) if mask.size else 0
-    if length < minimum:
-        raise VnlError(
-            f"DSA needs every episode to last at least {minimum} steps (n_delays + 2); the shortest lasts {length}: "
-            "record longer episodes or use fewer --delays"
-        )
-    out = np.zeros_like(mask)
-    out[:, :length] = True
-    return out & mask, length
+    return Comparison(networks, pairs, measure, module.label(options), options, n, source)
 
 
 def table(result: Comparison) -> str:
     """The comparison as text: for each pair, a layers × layers table; then, per layer name
     shared by all networks, the same-layer similarity of every pair (across-seed pairs marked)."""
-    lines = [f"{_label(result)} on {result.samples:,} steps of {result.source}"]
+    lines = [f"{result.label} on {result.samples:,} steps of {result.source}"]
     for (i, j), m in result.pairs.items():
         a, b = result.networks[i], result.networks[j]
         seeds = "  (same model, other seed)" if result.same_seed_group(i, j) else ""
@@ -248,14 +168,16 @@ def heatmap(result: Comparison, out: str | Path) -> Path:
     rows = -(-len(pairs) // cols)
     fig = Figure(figsize=(5.2 * cols, 4.6 * rows))
     axes = fig.subplots(rows, cols, squeeze=False)
-    label = _label(result)
-    lo, hi = {"cka": (0, 1), "dsa": (0, np.pi / 2)}.get(result.measure, (-1, 1))
+    label = result.label
+    module = registry.measure(result.measure)
+    lo, hi = module.RANGE
+    distance = getattr(module, "DISTANCE", False)  # 0 is the same: the colours run the other way
     for ax, ((i, j), m) in zip(axes.flat, pairs, strict=False):
-        image = ax.imshow(m, vmin=lo, vmax=hi, cmap="viridis_r" if result.measure == "dsa" else "viridis")
+        image = ax.imshow(m, vmin=lo, vmax=hi, cmap="viridis_r" if distance else "viridis")
         ax.set_yticks(range(m.shape[0]), result.layer_names(i), fontsize=7)
         ax.set_xticks(range(m.shape[1]), result.layer_names(j), fontsize=7, rotation=60, ha="right")
         for (r, c), v in np.ndenumerate(m):
-            light = (v - lo) / (hi - lo) > 0.6 if result.measure != "dsa" else (v - lo) / (hi - lo) < 0.4
+            light = (v - lo) / (hi - lo) > 0.6 if not distance else (v - lo) / (hi - lo) < 0.4
             ax.text(c, r, f"{v:.2f}", ha="center", va="center", fontsize=6, color="k" if light else "w")
         seeds = " (seeds)" if result.same_seed_group(i, j) else ""
         ax.set_title(f"{result.networks[i].name} vs {result.networks[j].name}{seeds}", fontsize=9)
@@ -285,19 +207,18 @@ class Source:
 def parse_source(text: str) -> Source:
     """`RUN_DIR`, `RUN_DIR@STEP` (a checkpoint; `@best`: `vnl.policy.best_checkpoint`) or a
     recording file written by `vnl record`."""
-    from vnl.analysis import open_recording, recorded_run
     from vnl.policy import best_checkpoint
 
     path = Path(text)
     if path.is_file():
-        ds = open_recording(path)
+        ds = formats.read(path, formats.RUN_OR_RECORDING)
         try:
             step = int(ds.attrs["checkpoint_step"])
         except (KeyError, TypeError, ValueError):
             raise VnlError(
                 f"{path} does not say which checkpoint it recorded (checkpoint_step); is it a vnl recording?"
             ) from None
-        return Source(recorded_run(ds, path), step, path)
+        return Source(model.recorded_run(ds, path), step, path)
     step: int | None = None
     if "@" in path.name and not path.is_dir():
         name, _, number = path.name.rpartition("@")
@@ -327,12 +248,11 @@ def shared_recording(
     sources, else a new recording of the first source's policy (`episodes` x `steps`, default the
     episode length). Returns (dataset, a description of where it came from)."""
     from vnl import record
-    from vnl.analysis import open_recording
     from vnl.policy import load_run
 
     path = recording or next((s.recording for s in sources if s.recording is not None), None)
     if path is not None:
-        ds = open_recording(path)
+        ds = formats.read(path)
         return ds, f"{path} ({ds.sizes['episode']} episodes)"
     run = load_run(sources[0].run_dir, step=sources[0].step)
     steps = steps or run.config.episode_length()
@@ -369,7 +289,7 @@ def network(source: Source, obs: np.ndarray, mask: np.ndarray, name: str) -> Net
     activity = episode_activity(run, obs)
     layers = {}
     for k in sorted(activity, key=_layer_order):
-        if k.startswith(("policy_", "value_")):
+        if k.startswith(model.LAYER_PREFIXES):
             v = np.asarray(activity[k])
             layers[k] = (v[..., None] if v.ndim == 2 else v)[mask]
     group = f"{group_key(run.run_dir)}@{run.step}"
@@ -393,15 +313,3 @@ def names(sources: list[Source]) -> list[str]:
     base = [label(s, 1) for s in sources]
     base = [b if base.count(b) == 1 else label(s, 2) for s, b in zip(sources, base, strict=True)]
     return [b if base.count(b) == 1 else f"{b}#{base[:i].count(b) + 1}" for i, b in enumerate(base)]
-
-
-def subsample(mask: np.ndarray, n: int) -> np.ndarray:
-    """`mask` (episodes, time) keeping at most `n` of its True steps, evenly spaced."""
-    total = int(mask.sum())
-    if n < 1 or total <= n:
-        return mask
-    keep = np.zeros(total, bool)
-    keep[np.linspace(0, total - 1, n).astype(int)] = True
-    out = mask.copy()
-    out[mask] = keep
-    return out

@@ -3,8 +3,9 @@
 `record` rolls out a trained run's policy and returns an `xarray.Dataset` with, per episode and
 time step: the observation, the activations of every layer of the policy and value networks, the
 action, the reward and its terms, the env's metrics, and the walker's joint angles, joint
-velocities and body poses (positions and orientations). `write` saves it as NetCDF-4 (HDF5, through h5netcdf) with named
-dimensions, readable with xarray or h5py alone.
+velocities and body poses (positions and orientations). `write` (`vnl.recording.netcdf.write`)
+saves it as NetCDF-4 (HDF5, through h5netcdf) with named dimensions, readable with xarray or h5py
+alone.
 
 Timing: variables indexed by `time` t describe the step that starts in state s_t: the observation
 o_t, the network activity computed from o_t, the action a_t chosen from it, the body pose in s_t
@@ -24,16 +25,17 @@ from __future__ import annotations
 
 import json
 import os
-from pathlib import Path
 from typing import Any
 
 import jax
 import jax.numpy as jp
 import numpy as np
 
-from vnl import durable
 from vnl.errors import VnlError
 from vnl.policy import LoadedRun
+from vnl.recording import behaviour, model
+from vnl.recording.netcdf import write  # noqa: F401 (`vnl.record.write`, the name the tutorials use)
+from vnl.rollout import run_episodes
 from vnl.train.networks import ACTIVATIONS, make_network
 from vnl.train.recurrent import make_recurrent_networks
 
@@ -108,7 +110,7 @@ def episode_activity(run: LoadedRun, obs: np.ndarray) -> dict[str, np.ndarray]:
         return core, activity
 
     _, activity = jax.lax.scan(body, initial_core(run, (obs.shape[0],)), jp.swapaxes(obs, 0, 1))
-    return {k: _et(v) for k, v in jax.device_get(activity).items()}
+    return {k: np.swapaxes(np.asarray(v), 0, 1) for k, v in jax.device_get(activity).items()}
 
 
 def initial_core(run: LoadedRun, batch_shape: tuple[int, ...]) -> Any:
@@ -151,69 +153,43 @@ def _recurrent_activity(
 
 
 def record(run: LoadedRun, episodes: int, steps: int, seed: int = 0, deterministic: bool = True) -> Any:
-    """Rolls out `episodes` episodes of `steps` control steps and returns an xarray.Dataset
-    (see the module docstring; a pixel env's images are stored as `pixels_<camera>`)."""
+    """Rolls out `episodes` episodes of `steps` control steps (`vnl.rollout.run_episodes`, with
+    every layer's activity kept) and returns an xarray.Dataset (see the module docstring; a pixel
+    env's images are stored as `pixels_<camera>`)."""
     if episodes < 1 or steps < 1:
         raise VnlError(f"--episodes and --steps must be >= 1, got {episodes} and {steps}")
-    raw = _rollout(run, episodes, steps, seed, deterministic)
-    return _dataset(run, raw, episodes, steps, seed, deterministic)
-
-
-def _rollout(run: LoadedRun, episodes: int, steps: int, seed: int, deterministic: bool) -> dict[str, Any]:
-    """Host arrays (steps, episodes, ...) of everything recorded at each step."""
     env = run.env
 
-    @jax.jit
-    def go(rng: jax.Array) -> Any:
-        k_reset, k_act = jax.random.split(rng)
-        state = jax.vmap(env.reset)(jax.random.split(k_reset, episodes))
+    def actor(obs: Any, core: Any, key: jax.Array) -> tuple[dict[str, Any], Any]:
+        return network_activity(run, obs, key, deterministic, core)
 
-        def body(carry: Any, key: jax.Array) -> Any:
-            state, core, alive = carry
-            activity, core = network_activity(run, state.obs, key, deterministic, core)
-            nxt = jax.vmap(env.step)(state, activity["action"])
-            out = {
-                "observation": state.obs,
-                "qpos": state.data.qpos,
-                "qvel": state.data.qvel,
-                "body_pos": state.data.xpos,
-                "body_quat": state.data.xquat,
-                "reward": nxt.reward,
-                "done": nxt.done,
-                "active": alive,
-                "metrics": nxt.metrics,
-                **activity,
-            }
-            if env.mj_model.nmocap:  # the gaps corridor's platforms move with the walker
-                out["mocap_pos"] = state.data.mocap_pos
-            return (nxt, core, alive * (1.0 - nxt.done)), out
-
-        keys = jax.random.split(k_act, steps)
-        _, out = jax.lax.scan(body, (state, initial_core(run, (episodes,)), jp.ones((episodes,))), keys)
-        layout = state.info.get("layout") if isinstance(state.info, dict) else None
-        if layout is not None:  # a gaps corridor: each episode's platforms, (episodes, platforms)
-            out["layout_start"], out["layout_length"] = layout.start, layout.length
-        return out
-
-    return jax.device_get(go(jax.random.PRNGKey(seed)))
+    fields = ("qpos", "qvel", "xpos", "xquat") + (("mocap_pos",) if env.mj_model.nmocap else ())
+    core = initial_core(run, (episodes,))
+    e = run_episodes(env, actor, core, jax.random.PRNGKey(seed), episodes, steps, fields, observations=True)
+    raw = {_STATE_NAMES.get(f, f): e.states[f][:, :steps] for f in fields}  # s_0 .. s_{T-1}
+    raw.update(reward=e.reward, done=e.done, active=e.active, metrics=e.metrics, **e.acted)
+    layout = e.info0.get("layout") if isinstance(e.info0, dict) else None
+    if layout is not None:  # a gaps corridor: each episode's platforms, (episodes, platforms)
+        raw["layout_start"], raw["layout_length"] = np.asarray(layout.start), np.asarray(layout.length)
+    return _dataset(run, raw, e.obs, seed, deterministic)
 
 
-def _et(x: Any) -> np.ndarray:
-    """(T, E, ...) -> (E, T, ...)."""
-    return np.swapaxes(np.asarray(x), 0, 1)
+_STATE_NAMES = {"xpos": "body_pos", "xquat": "body_quat"}
+"""The recording's names of the `mjx.Data` fields it keeps under another name."""
 
 
 def _observation_variables(env: Any, observation: Any) -> tuple[dict[str, Any], list[str]]:
     """The flat observation (episode, time, feature) and, for a pixel env, each image
-    (episode, time, row, column, channel), with the feature labels."""
-    dims_et = ("episode", "time")
+    (episode, time, row, column, channel), with the feature labels, of the observations
+    (episode, time, ...)."""
+    dims_et = model.STEP_DIMS
     data: dict[str, Any] = {}
     if isinstance(observation, dict):  # a pixel env: {"state": ..., "pixels/<camera>": ...}
         for key, image in observation.items():
             if key.startswith("pixels/"):
-                data[key.replace("/", "_")] = (dims_et + ("pixel_row", "pixel_column", "channel"), _et(image))
+                data[key.replace("/", "_")] = (dims_et + ("pixel_row", "pixel_column", "channel"), np.asarray(image))
         observation = observation["state"]
-    flat = _et(observation)
+    flat = np.asarray(observation)
     layout = [(name, w) for name, w in env.observation_layout() if not name.startswith("pixels/")]
     labels = [f"{name}[{i}]" for name, w in layout for i in range(w)]
     if len(labels) != flat.shape[-1]:
@@ -222,38 +198,47 @@ def _observation_variables(env: Any, observation: Any) -> tuple[dict[str, Any], 
     return data, labels
 
 
-def _dataset(run: LoadedRun, raw: dict[str, Any], episodes: int, steps: int, seed: int, deterministic: bool) -> Any:
-    import mujoco
-    import xarray as xr
-
-    env, m = run.env, run.env.mj_model
-    dims_et = ("episode", "time")
-    data, obs_labels = _observation_variables(env, raw["observation"])
+def _variables(run: LoadedRun, raw: dict[str, Any], observation: Any) -> tuple[dict[str, Any], list[str], list]:
+    """The recording's variables (name -> (dims, array)) of the episode-major arrays `raw`, the
+    observation's labels and the layers ({"name", "units"})."""
+    m = run.env.mj_model
+    dims_et = model.STEP_DIMS
+    data, obs_labels = _observation_variables(run.env, observation)
     data.update(
         {
-            "action": (dims_et + ("actuator",), _et(raw["action"])),
-            "reward": (dims_et, _et(raw["reward"])),
-            "done": (dims_et, _et(raw["done"])),
-            "active": (dims_et, _et(raw["active"])),
-            "qpos": (dims_et + ("qpos_index",), _et(raw["qpos"])),
-            "qvel": (dims_et + ("qvel_index",), _et(raw["qvel"])),
-            "body_pos": (dims_et + ("body", "xyz"), _et(raw["body_pos"])),
-            "body_quat": (dims_et + ("body", "wxyz"), _et(raw["body_quat"])),
+            "action": (dims_et + ("actuator",), raw["action"]),
+            "reward": (dims_et, raw["reward"]),
+            "done": (dims_et, raw["done"]),
+            "active": (dims_et, raw["active"]),
+            "qpos": (dims_et + ("qpos_index",), raw["qpos"]),
+            "qvel": (dims_et + ("qvel_index",), raw["qvel"]),
+            "body_pos": (dims_et + ("body", "xyz"), raw["body_pos"]),
+            "body_quat": (dims_et + ("body", "wxyz"), raw["body_quat"]),
             "body_parent": (("body",), np.asarray(m.body_parentid, np.int32)),
         }
     )
     for k, v in raw["metrics"].items():
-        data[k.replace("/", "_")] = (dims_et, _et(v))
-    behaviour_vars, behaviour_coords, behaviour_attrs = _behaviour(env, raw)
-    data.update({k: (dims, v) for k, (dims, v, _) in behaviour_vars.items()})
+        data[k.replace("/", "_")] = (dims_et, v)
     layers = []
     for k in sorted(raw):
-        if k.startswith(("policy_", "value_")):
-            v = _et(raw[k])
+        if k.startswith(model.LAYER_PREFIXES):
+            v = np.asarray(raw[k])
             if v.ndim == 2:  # the value output: one unit
                 v = v[..., None]
             data[k] = (dims_et + (f"{k}_unit",), v)
             layers.append({"name": k, "units": int(v.shape[-1])})
+    return data, obs_labels, layers
+
+
+def _dataset(run: LoadedRun, raw: dict[str, Any], observation: Any, seed: int, deterministic: bool) -> Any:
+    import mujoco
+    import xarray as xr
+
+    env, m = run.env, run.env.mj_model
+    episodes, steps = raw["reward"].shape
+    data, obs_labels, layers = _variables(run, raw, observation)
+    behaviour_vars, behaviour_coords, behaviour_attrs = _behaviour(env, raw)
+    data.update({k: (dims, v) for k, (dims, v, _) in behaviour_vars.items()})
 
     def names(obj: Any, n: int) -> list[str]:
         return [mujoco.mj_id2name(m, obj, i) or f"{i}" for i in range(n)]
@@ -300,13 +285,10 @@ def _dataset(run: LoadedRun, raw: dict[str, Any], episodes: int, steps: int, see
 
 
 def _behaviour(env: Any, raw: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any]]:
-    """`vnl.behaviour.variables` of the rollout's host arrays (steps first), episode-major."""
-    from vnl import behaviour
-
-    per_step = ("qpos", "qvel", "body_pos", "body_quat", "active", "done", "mocap_pos")
-    arrays = {k: _et(raw[k]) for k in per_step if k in raw}
-    arrays["metrics"] = {k: _et(v) for k, v in raw["metrics"].items()}
-    arrays.update({k: np.asarray(raw[k]) for k in ("layout_start", "layout_length") if k in raw})
+    """`vnl.recording.behaviour.variables` of the rollout's episode-major host arrays."""
+    per_step = ("qpos", "qvel", "body_pos", "body_quat", "active", "done", "mocap_pos", "metrics")
+    arrays = {k: raw[k] for k in per_step if k in raw}
+    arrays.update({k: raw[k] for k in ("layout_start", "layout_length") if k in raw})
     return behaviour.variables(env, arrays)
 
 
@@ -324,8 +306,3 @@ def _dof_labels(m: Any, qpos: bool) -> list[str]:
         for k in range(width):
             labels[adr[j] + k] = name if width == 1 else f"{name}[{k}]"
     return labels
-
-
-def write(ds: Any, path: str | Path) -> Path:
-    """Writes the dataset as NetCDF-4 (HDF5) via h5netcdf, atomically and durably."""
-    return durable.write_atomic(Path(path), writer=lambda tmp: ds.to_netcdf(tmp, engine="h5netcdf"))

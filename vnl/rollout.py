@@ -1,8 +1,10 @@
-"""Batched rollouts of a policy in an env (for eval, render and videos)."""
+"""Batched rollouts of a policy in an env: the one engine (`run_episodes`) that `vnl eval`,
+`render`, `record` and `view` share, eval's summary, and policy videos."""
 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -17,6 +19,97 @@ from vnl.quiet_mjx import mjx
 from vnl.tasks.contract import Env
 from vnl.vision.camera import Camera
 from vnl.vision.env import VisionEnv, default_camera
+
+Actor = Callable[[Any, Any, jax.Array], tuple[dict[str, jax.Array], Any]]
+"""`actor(obs, core, key) -> ({"action": (..., act), ...}, core)`: the step's action, anything else
+to keep of the step (a network's layers), and the actor's new state (`()` for a feed-forward one)."""
+
+
+@dataclasses.dataclass
+class Episodes:
+    """What `run_episodes` keeps of E episodes of T control steps. Step t is the state s_t the
+    actor acted in and the transition s_t -> s_{t+1}; arrays are episode-major.
+
+    Attributes:
+      states: field -> (E, T + 1, ...) the states' `mjx.Data` fields s_0, ..., s_T (`qpos`, ...).
+      obs: the observations (E, T, ...) of s_0 .. s_{T-1} (a dict for a pixel env), or None.
+      acted: name -> (E, T, ...) what the actor returned for each step ("action", layers).
+      reward, done: (E, T) of each transition. active: (E, T) 1.0 for the steps up to and
+        including the one that ended the episode.
+      metrics: name -> (E, T) the metrics of s_{t+1}. metrics0: name -> (E,) those of s_0.
+      info0: the reset states' `info` (e.g. the gaps corridor's `layout`).
+    """
+
+    states: dict[str, np.ndarray]
+    obs: Any
+    acted: dict[str, np.ndarray]
+    reward: np.ndarray
+    done: np.ndarray
+    active: np.ndarray
+    metrics: dict[str, np.ndarray]
+    metrics0: dict[str, np.ndarray]
+    info0: Any
+
+
+def run_episodes(
+    env: Env,
+    actor: Actor,
+    initial_core: Any,
+    rng: jax.Array,
+    episodes: int,
+    steps: int,
+    fields: tuple[str, ...] = ("qpos", "mocap_pos"),
+    observations: bool = False,
+) -> Episodes:
+    """Runs `episodes` episodes in parallel for `steps` control steps (no auto-reset): the one
+    rollout engine of `vnl eval`, `render`, `record` and `view`. `rng` is split into the resets'
+    keys and one key per step (shared by the episodes); `initial_core` is the actor's state at
+    the start (batched over episodes); `fields` are the `mjx.Data` fields kept of every state;
+    `observations` keeps each step's observation."""
+
+    @jax.jit
+    def go(rng: jax.Array) -> Any:
+        k_reset, k_act = jax.random.split(rng)
+        state = jax.vmap(env.reset)(jax.random.split(k_reset, episodes))
+
+        def body(carry: Any, key: jax.Array) -> Any:
+            state, core, alive = carry
+            acted, core = actor(state.obs, core, key)
+            nxt = jax.vmap(env.step)(state, acted["action"])
+            out = {
+                "state": {f: getattr(state.data, f) for f in fields},
+                "obs": state.obs if observations else None,
+                "acted": acted,
+                "reward": nxt.reward,
+                "done": nxt.done,
+                "active": alive,
+                "metrics": nxt.metrics,
+            }
+            return (nxt, core, alive * (1.0 - nxt.done)), out
+
+        keys = jax.random.split(k_act, steps)
+        (last, _, _), out = jax.lax.scan(body, (state, initial_core, jp.ones((episodes,))), keys)
+        final = {f: getattr(last.data, f) for f in fields}
+        return out, final, state.metrics, state.info
+
+    out, final, metrics0, info0 = jax.device_get(go(rng))
+    states = {f: np.concatenate([_et(out["state"][f]), np.asarray(final[f])[:, None]], axis=1) for f in fields}
+    return Episodes(
+        states=states,
+        obs=jax.tree.map(_et, out["obs"]),
+        acted={k: _et(v) for k, v in out["acted"].items()},
+        reward=_et(out["reward"]),
+        done=_et(out["done"]),
+        active=_et(out["active"]),
+        metrics={k: _et(v) for k, v in out["metrics"].items()},
+        metrics0={k: np.asarray(v) for k, v in metrics0.items()},
+        info0=info0,
+    )
+
+
+def _et(x: Any) -> np.ndarray:
+    """(T, E, ...) -> (E, T, ...)."""
+    return np.swapaxes(np.asarray(x), 0, 1)
 
 
 @dataclasses.dataclass
@@ -47,40 +140,16 @@ class Rollout:
 
 
 def rollout(env: Env, policy: Policy | RecurrentPolicy, rng: jax.Array, episodes: int, steps: int) -> Rollout:
-    """Runs `episodes` episodes in parallel for `steps` control steps (no auto-reset); a
-    recurrent policy's state starts at its initial state."""
+    """Runs `episodes` episodes of `policy` in parallel for `steps` control steps (no auto-reset;
+    `run_episodes`); a recurrent policy's state starts at its initial state."""
     initial_state, act = stateful(policy)
 
-    @jax.jit
-    def run(rng: jax.Array) -> Any:
-        k_reset, k_act = jax.random.split(rng)
-        state = jax.vmap(env.reset)(jax.random.split(k_reset, episodes))
+    def actor(obs: Any, core: Any, key: jax.Array) -> tuple[dict[str, jax.Array], Any]:
+        action, core = act(obs, core, key)
+        return {"action": action}, core
 
-        def body(carry: Any, key: jax.Array) -> Any:
-            state, core, alive = carry
-            action, core = act(state.obs, core, key)
-            nxt = jax.vmap(env.step)(state, action)
-            active = alive
-            alive = alive * (1.0 - nxt.done)
-            out = (nxt.data.qpos, nxt.data.mocap_pos, nxt.reward, nxt.done, active, nxt.metrics)
-            return (nxt, core, alive), out
-
-        keys = jax.random.split(k_act, steps)
-        start = (state, initial_state((episodes,)), jp.ones((episodes,)))
-        _, (qpos, mocap, reward, done, active, metrics) = jax.lax.scan(body, start, keys)
-        return state.data.qpos, state.data.mocap_pos, state.metrics, qpos, mocap, reward, done, active, metrics
-
-    qpos0, mocap0, metrics0, qpos, mocap, reward, done, active, metrics = jax.device_get(run(rng))
-    to_et = lambda x: np.swapaxes(np.asarray(x), 0, 1)  # (T, E, ...) -> (E, T, ...)
-    return Rollout(
-        qpos=np.concatenate([np.asarray(qpos0)[:, None], to_et(qpos)], axis=1),
-        mocap_pos=np.concatenate([np.asarray(mocap0)[:, None], to_et(mocap)], axis=1),
-        reward=to_et(reward),
-        done=to_et(done),
-        active=to_et(active),
-        metrics={k: to_et(v) for k, v in metrics.items()},
-        metrics0={k: np.asarray(v) for k, v in metrics0.items()},
-    )
+    e = run_episodes(env, actor, initial_state((episodes,)), rng, episodes, steps)
+    return Rollout(e.states["qpos"], e.states["mocap_pos"], e.reward, e.done, e.active, e.metrics, e.metrics0)
 
 
 def summarize(r: Rollout, dt: float) -> dict[str, Any]:

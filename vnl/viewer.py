@@ -31,6 +31,7 @@ import numpy as np
 
 from vnl import durable
 from vnl.errors import VnlError
+from vnl.recording import model
 
 HIDDEN_GROUP = 3  # vnl's collision proxies live in geom group 3 (walkers.mjx_compat)
 PLANE_HALF_SIZE = 25.0  # m; an infinite MuJoCo plane (size 0) is drawn this large
@@ -209,7 +210,7 @@ def log_layers(rec: Any, ds: Any, episode: int, steps: int, units: int) -> list[
     of its `units` most variable units (`units/<layer>/<unit>`); returns the layer names."""
     import rerun as rr
 
-    layers = [v for v in ds.data_vars if v.startswith(("policy_", "value_"))]
+    layers = model.layers(ds)
     dt = float(ds.attrs["control_dt"])
     for layer in layers:
         activity = np.asarray(ds[layer].values[episode, :steps], np.float64)  # (T, units)
@@ -382,12 +383,11 @@ def recording_env(ds: Any, recording: str | Path | None = None) -> Any:
     checkpoint was trained on, and the task variant it was recorded on, `vnl record --set`; no
     checkpoint is loaded). `recording`: the file it was read from (finds the run of an older
     recording that stored its run directory relative to where it was recorded)."""
-    from vnl.analysis import recorded_run
     from vnl.policy import read_config
     from vnl.train.config_changes import task_variant
     from vnl.train.worlds import trained_config
 
-    run_dir = recorded_run(ds, recording)
+    run_dir = model.recorded_run(ds, recording)
     config = trained_config(read_config(run_dir), run_dir, int(ds.attrs.get("checkpoint_step", 0)))
     try:
         env_set = json.loads(ds.attrs.get("env_set", "[]"))

@@ -5,7 +5,8 @@ Every command's output is checked here, given with `--out` or not (its default i
 path arithmetic alone), so that a command never does its work and then fails to write: the
 directory exists and is writable (not a read-only file system), an existing file there is a
 regular file we may replace, the name has the command's file type, and it is neither one of the
-command's inputs nor a file `vnl train` manages in a run directory (`vnl.io.layout`).
+command's inputs nor a file `vnl train` manages in a run directory (`vnl.io.layout`). A symbolic
+link is checked as what the write replaces, its target (a link to nothing is refused).
 """
 
 from __future__ import annotations
@@ -59,6 +60,21 @@ def input_file(path: str, what: str) -> None:
         raise VnlError(f"cannot read {what} {path} (permission denied)")
 
 
+def recording(path: str, what: str = "recording", wants: str | None = None) -> None:
+    """A recording: an input file (`input_file`) that a reader of `vnl.recording` reads, told by
+    its content (an NWB file, another HDF5 or NetCDF file, a run's config: one line naming it and
+    what the command `wants`)."""
+    from vnl.recording import formats
+
+    input_file(path, what)
+    formats.readable(path, wants or formats.RECORDING)
+
+
+def beside(path: str | Path, name: str) -> Path:
+    """`name` in the folder of the file `path` (path arithmetic that also holds for `.` or `/`)."""
+    return Path(path).parent / name
+
+
 def read_only(path: Path) -> bool:
     """Whether `path` (an existing directory) is on a file system mounted read-only."""
     try:
@@ -82,12 +98,23 @@ def writable_dir(path: str | Path, what: str) -> None:
 
 def output(path: str | Path, kinds: tuple[str, ...], inputs: Iterable[str | Path] = (), given: bool = True) -> None:
     """An output file a command will write (`given`: by `--out`; else its default)."""
-    p = Path(path)
+    p, inputs = Path(path), list(inputs)
     what = "--out" if given else "the output (the default; choose another with --out)"
     if p.is_dir():
         raise VnlError(f"{what} {path} is a directory; give a file name")
     if p.suffix.lower() not in kinds:
         raise VnlError(f"{what} {path}: expected a {' or '.join(kinds)} file name")
+    if p.is_symlink():  # the write replaces the link's target (`durable.write_atomic`): check that
+        target = Path(os.path.realpath(p))
+        if not p.exists():
+            raise VnlError(
+                f"{what} {path} is a symbolic link to nothing ({target} is missing, or links loop); "
+                "remove the link or choose another --out"
+            )
+        _not_an_input(what, path, target, inputs)
+        if target.suffix.lower() not in kinds:
+            raise VnlError(f"{what} {path} links to {target}: expected a {' or '.join(kinds)} file")
+        p = target
     parent = p.parent
     if not parent.is_dir():
         state = "is not a directory" if parent.exists() else "does not exist"
@@ -102,11 +129,14 @@ def output(path: str | Path, kinds: tuple[str, ...], inputs: Iterable[str | Path
         if not os.access(p, os.W_OK):
             raise VnlError(f"{what} {path}: cannot replace it (permission denied)")
     target = os.path.realpath(p)
-    for source in inputs:
-        if os.path.realpath(source) == target:
-            raise VnlError(f"{what} {path} is an input of this command; writing it would destroy it")
+    _not_an_input(what, path, target, inputs)
     if layout.is_run_managed(target) or layout.is_run_managed(p):
         raise VnlError(f"{what} {path} is a file `vnl train` keeps in its run directory; choose another --out")
+
+
+def _not_an_input(what: str, path: str | Path, target: str | Path, inputs: Iterable[str | Path]) -> None:
+    if any(os.path.realpath(source) == os.path.realpath(target) for source in inputs):
+        raise VnlError(f"{what} {path} is an input of this command; writing it would destroy it")
 
 
 def new_run_dir(path: str | Path, flag: str = "--out") -> None:

@@ -4,13 +4,15 @@ comparisons) and dynamical similarity (DSA) of networks shown the same episodes.
 from __future__ import annotations
 
 import argparse
-import json
+import dataclasses
 from pathlib import Path
 from typing import Any
 
 from vnl import durable
 from vnl.cli import checks, options, process
 from vnl.errors import VnlError
+from vnl.neuro import registry
+from vnl.recording.formats import RUN_OR_RECORDING
 
 
 def add(sub: Any) -> None:
@@ -22,13 +24,8 @@ def add(sub: Any) -> None:
     p.add_argument("--episodes", type=options.COUNT, default=4, help="episodes of a new recording of the first network")
     p.add_argument("--steps", type=options.COUNT, help="steps per episode of a new recording (default: episode length)")
     p.add_argument("--seed", type=options.SEED, default=0, help="seed of a new recording")
-    p.add_argument(
-        "--measure",
-        choices=("cka", "rsa", "rdm", "dsa"),
-        help="cka: linear CKA (default); rsa: Spearman of scipy RDMs (--distance); rdm: rsatoolbox's RDMs "
-        "(--distance: correlation, euclidean, ...) compared with --rdm-comparison; dsa: Dynamical Similarity "
-        "Analysis of each layer's time series (an angular distance: 0 for the same dynamics)",
-    )
+    measures = "; ".join(f"{name}: {text}" for name, (_, text) in registry.MEASURES.items())
+    p.add_argument("--measure", choices=list(registry.MEASURES), help=measures)
     p.add_argument("--rsa", metavar="DISTANCE", help="RSA with this distance (e.g. correlation): --measure rsa")
     p.add_argument("--distance", default="correlation", help="rsa and rdm: the dissimilarity (default correlation)")
     p.add_argument(
@@ -52,38 +49,54 @@ def measure_of(args: argparse.Namespace) -> str:
     return "rsa" if args.rsa else args.measure or "cka"
 
 
+def method_options(args: argparse.Namespace) -> registry.Options:
+    """The measure's options from the flags."""
+    return registry.Options(
+        distance=args.rsa or args.distance, comparison=args.rdm_comparison, delays=args.delays, rank=args.rank,
+        max_samples=args.max_samples,
+    )  # fmt: skip
+
+
+def _run_dir(text: str) -> Path:
+    """The run directory of RUN_DIR or RUN_DIR@STEP (path arithmetic only; `.` and `/` stay)."""
+    path = Path(text)
+    if "@" in path.name and not path.exists():
+        return path.parent / path.name.rpartition("@")[0]
+    return path
+
+
 def check(args: argparse.Namespace) -> None:
-    measure = measure_of(args)
-    if measure == "rdm":
-        from vnl.neuro import similarity
-
-        similarity.check(args.distance, args.rdm_comparison)
+    measure = registry.measure(measure_of(args))
+    if hasattr(measure, "check"):
+        measure.check(method_options(args))
     for text in args.networks:
-        path = Path(text)
-        run = path.with_name(path.name.rpartition("@")[0] or path.name)
-        if not path.exists() and not run.is_dir():
+        path, run = Path(text), _run_dir(text)
+        if path.is_file() or (path.is_symlink() and not path.exists()):
+            checks.recording(text, "network", RUN_OR_RECORDING)
+        elif run.is_dir():
+            checks.run_dir(str(run), "NETWORK")
+        else:
             raise VnlError(f"{text} is neither a run directory (RUN_DIR or RUN_DIR@STEP) nor a recording file")
-    recordings = [n for n in [*args.networks, args.recording] if n and Path(n).is_file()]
-    if args.recording and not Path(args.recording).is_file():
-        checks.input_file(args.recording, "recording")  # missing, a directory, a pipe: one line
-    for path in recordings:
-        checks.input_file(path, "recording")
-    out = args.out or default_out(args)
-    if out is not None:  # else the first network is a recording: checked once its run is read
-        _check_outputs(Path(out), recordings, given=bool(args.out))
+    if args.recording:
+        checks.recording(args.recording)
+    _check_outputs(Path(args.out or default_out(args)), _recordings(args), given=bool(args.out))
 
 
-def default_out(args: argparse.Namespace) -> str | None:
-    """The default heatmap of a first network given as RUN_DIR or RUN_DIR@STEP; None for a
-    recording (its run is named inside it)."""
+def _recordings(args: argparse.Namespace) -> list[str]:
+    """The recordings among the inputs (networks given as recordings, --recording)."""
+    return [n for n in [*args.networks, args.recording] if n and Path(n).is_file()]
+
+
+def default_out(args: argparse.Namespace) -> str:
+    """<run>/compare_<measure>.png: the run of the first network (a recording's, read from its
+    attributes with h5py, before anything heavy is imported)."""
     first = Path(args.networks[0])
     if first.is_file():
-        return None
-    run_dir = (
-        first
-        if first.is_dir() or "@" not in first.name
-        else first.with_name(first.name.rpartition("@")[0] or first.name)
-    )
+        from vnl.recording import formats, model
+
+        run_dir = model.recorded_run(argparse.Namespace(attrs=formats.attributes(first)), first)
+    else:
+        run_dir = _run_dir(args.networks[0])
     return str(run_dir / f"compare_{measure_of(args)}.png")
 
 
@@ -98,25 +111,20 @@ def run(args: argparse.Namespace) -> int:
 
     if len(args.networks) < 2:
         raise VnlError("vnl compare needs at least two networks (run directories, RUN_DIR@STEP or recordings)")
-    measure = measure_of(args)
-    distance = args.rsa or args.distance
-    if measure == "rsa":
-        compare.check_distance(distance)
+    name, opts = measure_of(args), method_options(args)
+    measure = registry.measure(name)
     sources = [compare.parse_source(text) for text in args.networks]
-    out = Path(args.out) if args.out else sources[0].run_dir / f"compare_{measure}.png"
-    recordings = [n for n in [*args.networks, args.recording] if n and Path(n).is_file()]
-    _check_outputs(out, recordings, given=bool(args.out))
+    out = Path(args.out) if args.out else sources[0].run_dir / f"compare_{name}.png"
+    _check_outputs(out, _recordings(args), given=bool(args.out))
     ds, source = compare.shared_recording(sources, args.recording, args.episodes, args.steps, args.seed, process.say)
     obs, mask = compare.observations(ds)
-    if measure in ("rsa", "rdm"):  # RDMs grow with the square of the samples
-        mask = compare.subsample(mask, args.max_samples)
-    if measure == "dsa":  # time series: each episode's first steps, as many as the shortest has
-        mask, _ = compare.trial_mask(mask, args.delays + 2)
+    if hasattr(measure, "steps"):  # the steps the measure compares (a subsample, trials of equal length)
+        mask = measure.steps(mask, opts)
+    opts = dataclasses.replace(opts, trials=int(mask.any(axis=1).sum()))
     nets = [compare.network(s, obs, mask, n) for s, n in zip(sources, compare.names(sources), strict=True)]
-    trials = int(mask.any(axis=1).sum())
-    result = compare.compare(nets, measure, distance, source, args.rdm_comparison, trials, args.delays, args.rank)
+    result = compare.compare(nets, name, source=source, options=opts)
     print(compare.table(result))
     compare.heatmap(result, out)
-    durable.write_atomic(out.with_suffix(".json"), json.dumps(result.to_json(), indent=1))
+    durable.write_atomic(out.with_suffix(".json"), registry.json_text(result.to_json()))
     print(f"wrote {out} and {out.with_suffix('.json')}")
     return 0

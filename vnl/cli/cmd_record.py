@@ -53,11 +53,12 @@ def output_format(args: argparse.Namespace) -> str:
 def check(args: argparse.Namespace) -> None:
     output_format(args)
     if args.source:
-        checks.input_file(args.source, "recording")
+        checks.input_file(args.source, "--from")
         if args.run_dir:
             raise VnlError("give either RUN_DIR (record a run) or --from REC.nc (convert a recording), not both")
         if output_format(args) != "nwb":
             raise VnlError("--from converts a NetCDF recording to NWB; use --format nwb (or an --out ending in .nwb)")
+        checks.recording(args.source, "--from")  # by its content: already NWB, another HDF5 file, ...
         checks.output(args.out or default_out(args), (".nwb",), [args.source], given=bool(args.out))
         return
     if not args.run_dir:
@@ -79,11 +80,12 @@ def default_out(args: argparse.Namespace) -> str:
 
 def run(args: argparse.Namespace) -> int:
     from vnl import record
+    from vnl.recording import netcdf
 
     if args.source:
-        from vnl.analysis import open_recording
+        from vnl import recording
 
-        ds = open_recording(args.source)
+        ds = recording.read(args.source)
         config_path = Path(str(ds.attrs.get("run_dir", ""))) / "config.yaml"
         config = config_path.read_text() if config_path.is_file() else None
         out = _write_nwb(ds, Path(args.out or default_out(args)), config, args.experimenter)
@@ -92,6 +94,7 @@ def run(args: argparse.Namespace) -> int:
     from vnl import typed_config
     from vnl.cli.cmd_view import write_view
     from vnl.policy import load_run
+    from vnl.recording import model
 
     run = load_run(args.run_dir, step=checks.chosen_step(args.run_dir, args.step), env_set=args.set)
     steps = args.steps or run.config.episode_length()
@@ -100,8 +103,8 @@ def run(args: argparse.Namespace) -> int:
         config = typed_config.to_yaml(run.config)
         out = _write_nwb(ds, Path(args.out or default_out(args)), config, args.experimenter)
     else:
-        out = record.write(ds, args.out or default_out(args))
-    layers = ", ".join(f"{k} ({ds.sizes[k + '_unit']})" for k in ds.data_vars if k.startswith(("policy_", "value_")))
+        out = netcdf.write(ds, args.out or default_out(args))
+    layers = ", ".join(f"{k} ({ds.sizes[k + '_unit']})" for k in model.layers(ds))
     print(f"{run.config.env} @ step {run.step:,}: {args.episodes} episodes x {steps} steps -> {out}")
     print(f"layers: {layers}")
     if args.viewer:
@@ -111,7 +114,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _write_nwb(ds: Any, out: Path, config: str | None, experimenter: str | None) -> Path:
     """Writes the NWB file and prints nwbinspector's messages on it."""
-    from vnl.neuro import nwb
+    from vnl.recording import nwb
 
     command = "vnl " + shlex.join(sys.argv[1:]) if sys.argv[1:] else "vnl record"
     out = nwb.write(ds, out, config=config, command=command, experimenter=experimenter)

@@ -10,6 +10,7 @@ from typing import Any
 
 from vnl.cli import checks, options
 from vnl.errors import VnlError
+from vnl.recording.formats import RUN_OR_RECORDING
 
 
 def add(sub: Any) -> None:
@@ -41,22 +42,23 @@ def check(args: argparse.Namespace) -> None:
         if args.step is not None:
             raise VnlError("--step chooses a checkpoint to record; a recording was given")
     checks.output(args.out or default_out(args), (".rrd",), inputs=[args.source], given=bool(args.out))
+    if not source.is_dir():  # by its content: an NWB file, another HDF5 file, ...
+        checks.recording(args.source, "RUN_DIR|RECORDING", RUN_OR_RECORDING)
 
 
 def default_out(args: argparse.Namespace) -> str:
     source = Path(args.source)
-    return str(source / "view.rrd" if source.is_dir() else source.with_suffix(".rrd"))
+    return str(source / "view.rrd" if source.is_dir() else checks.beside(source, f"{source.stem}.rrd"))
 
 
 def run(args: argparse.Namespace) -> int:
-    from vnl import record, viewer
-    from vnl.analysis import open_recording
+    from vnl import record, recording, viewer
     from vnl.policy import load_run
 
     source = Path(args.source)
     out = Path(args.out or default_out(args))
     if source.is_file():
-        ds = open_recording(source)
+        ds = recording.read(source, RUN_OR_RECORDING)
         env = viewer.recording_env(ds, source)
     else:
         run = load_run(source, step=checks.chosen_step(source, args.step))

@@ -1,7 +1,13 @@
-"""Neuroscience tools for `vnl record` recordings: NWB export (`nwb`), encoding and decoding models
-(`encoding`, `decoding`), behavioural states (`states`), RDMs with rsatoolbox (`similarity`) and
-Dynamical Similarity Analysis (`dsa`), on the behaviour features of `features`.
+"""The methods that analyse recordings, each a module behind one registry (`registry`: what
+`vnl analyze --method` and `vnl compare --measure` dispatch to).
 
-These modules import their third-party tools (pynwb, scikit-learn, hmmlearn, rsatoolbox, ...) on
-use; nothing that `vnl train` imports imports them.
+- one recording (`vnl analyze`): `pca`, `encoding` and `decoding` models, behavioural `states`,
+  sharing the cross-validation of `crossval`;
+- two networks' layers on the same steps (`vnl compare`, `vnl.compare`): `cka`, `rsa`, `rdm`
+  (rsatoolbox), `dsa` (Dynamical Similarity Analysis).
+
+The data they read is `vnl.recording`'s (the model, the behaviour features, the readers). These
+modules import their third-party tools (scikit-learn, hmmlearn, rsatoolbox, ...) on use; nothing
+that `vnl train` imports imports them. `nwb` and `similarity` are the earlier names of
+`vnl.recording.nwb` and `rdm`.
 """

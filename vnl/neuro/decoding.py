@@ -3,7 +3,7 @@ decoding`).
 
 A ridge regression from a layer's units to the target (forward speed, a joint angle, gait phase
 as its cosine and sine, the distance to the next gap, any per-step variable:
-`vnl.neuro.features.target`), fitted on some episodes and scored on the others (`GroupKFold` by
+`vnl.recording.behaviour.target`), fitted on some episodes and scored on the others (`GroupKFold` by
 episode): the held-out R² (averaged over the target's columns). The control repeats the fit with
 the target moved in time against the activity (`shift` or `shuffle`) `repeats` times: its mean and
 standard deviation are the chance level to read the real R² against.
@@ -18,7 +18,9 @@ from typing import Any
 import numpy as np
 
 from vnl import durable
-from vnl.neuro import features as F
+from vnl.neuro import crossval as cv
+from vnl.neuro.registry import Options
+from vnl.recording import behaviour, model
 
 
 @dataclasses.dataclass
@@ -47,7 +49,7 @@ class Decoding:
             "layer": self.layer,
             "units": self.units,
             "target": self.target,
-            "r2": self.r2,
+            "r2": self.r2,  # finite: `decode` refuses a target it cannot score
             "control": self.control,
             "control_r2_mean": float(np.mean(self.control_r2)),
             "control_r2_std": float(np.std(self.control_r2)),
@@ -60,7 +62,7 @@ class Decoding:
 
 def _score(truth: np.ndarray, pred: np.ndarray) -> float:
     """R² averaged over the target's non-constant columns."""
-    values = F.r2(truth, pred)
+    values = cv.r2(truth, pred)
     return float(np.nanmean(values)) if np.isfinite(values).any() else float("nan")
 
 
@@ -74,18 +76,19 @@ def decode(
     seed: int = 0,
 ) -> Decoding:
     """Decodes `target` from `layer` (default: the policy's last hidden layer) of the recording."""
-    layer = layer or F.last_hidden_layer(ds)
-    F.check_layer(ds, layer)
-    F.check_control(control)
-    y, labels = F.target(ds, target)
-    s = F.samples(ds, F.activity(ds, layer), y, [], labels)
-    k = F.folds(s, n_folds)
-    pred = F.ridge_predict(s.x, s.y, s.episode, k)
+    layer = layer or model.last_hidden_layer(ds)
+    model.check_layer(ds, layer)
+    cv.check_control(control)
+    y, labels = behaviour.target(ds, target)
+    s = cv.samples(ds, model.activity(ds, layer), y, [], labels)
+    k = cv.folds(s, n_folds)
+    cv.check_target(s, target)
+    pred = cv.ridge_predict(s.x, s.y, s.episode, k)
     rng = np.random.default_rng(seed)
     ctrl = []
     for _ in range(max(1, repeats)):
-        order = F.control(s, control, rng)
-        ctrl.append(_score(s.y[order], F.ridge_predict(s.x, s.y[order], s.episode, k)))
+        order = cv.control(s, control, rng)
+        ctrl.append(_score(s.y[order], cv.ridge_predict(s.x, s.y[order], s.episode, k)))
     return Decoding(
         layer,
         target,
@@ -98,7 +101,24 @@ def decode(
         s.episode,
         s.time,
         int(s.x.shape[1]),
-        F.description(ds),
+        model.description(ds),
+    )
+
+
+def analyze(ds: Any, options: Options) -> Decoding:
+    """`decode` with the CLI's options (`vnl analyze --method decoding`)."""
+    return decode(ds, options.layer, options.target, options.folds, options.control, options.repeats, options.seed)
+
+
+def output_name(options: Options, ds: Any = None) -> str:
+    return f"decoding_{options.target.replace(':', '_')}"
+
+
+def report(result: Decoding) -> str:
+    doc = result.to_json()
+    return (
+        f"{result.target} from {result.layer}: held-out R² {result.r2:.3f}; control ({result.control}) "
+        f"{doc['control_r2_mean']:.3f} ± {doc['control_r2_std']:.3f}"
     )
 
 

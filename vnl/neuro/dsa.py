@@ -21,15 +21,26 @@ reflection), and here also from a few random orthogonal starts (the objective ha
 keeping the best. dsa-metric parameterises SO(n) with a Cayley map through a small network; the
 matrix exponential here reaches all of SO(n). benchmarks/dsa_check.py compares both on the same
 systems (docs/how-to/neurophysiology.md).
+
+The operator is fitted only where it is determined: r coefficients per row from N transitions
+(trials x (Hankel rows - 1)) need N >= 2r, as many residual degrees of freedom as coefficients;
+below N = r the fit is singular, and just above it the operator reproduces the noise of its few
+transitions, so the distances would mean nothing. `check_transitions` refuses such a fit, naming
+the rank that would fit.
 """
 
 from __future__ import annotations
 
 import functools
+from typing import Any
 
 import numpy as np
 
 from vnl.errors import VnlError
+from vnl.neuro.registry import Options
+
+RANGE = (0.0, float(np.pi / 2))
+DISTANCE = True
 
 
 def hankel(x: np.ndarray, n_delays: int) -> np.ndarray:
@@ -54,14 +65,33 @@ def havok(x: np.ndarray, n_delays: int = 10, rank: int = 20, ridge: float = 0.0)
     k, t, d = h.shape
     _, s, vt = np.linalg.svd(h.reshape(k * t, d).T, full_matrices=False)
     r = int(min(rank, np.sum(s > s[0] * 1e-12)))
+    check_transitions(k * (t - 1), r)
     v = vt.T[:, :r]
     # Singular vectors have arbitrary signs: make each column's largest entry positive, so that
     # systems that differ only by a rotation of their units get the same coordinates.
     v = v * np.sign(v[np.argmax(np.abs(v), axis=0), np.arange(r)])
     v = v.reshape(k, t, r)
     before, after = v[:, :-1].reshape(-1, r), v[:, 1:].reshape(-1, r)
-    a = np.linalg.solve(before.T @ before + ridge * np.eye(r), before.T @ after)
+    try:
+        a = np.linalg.solve(before.T @ before + ridge * np.eye(r), before.T @ after)
+    except np.linalg.LinAlgError:
+        raise VnlError(
+            f"DSA: the {r} delay coordinates of {k * (t - 1)} transitions are collinear; use a lower rank (--rank)"
+        ) from None
     return a.T
+
+
+def check_transitions(transitions: int, rank: int) -> None:
+    """`VnlError` unless `transitions` (trials x (Hankel rows - 1)) determine a rank-`rank`
+    operator (at least 2 x rank: see the module docstring), naming the rank that would fit."""
+    if transitions >= 2 * rank:
+        return
+    fits = transitions // 2
+    fix = f"use rank {fits} or less (--rank {fits}), " if fits >= 1 else ""
+    raise VnlError(
+        f"DSA: {transitions} transitions cannot determine a rank-{rank} operator (it needs at least {2 * rank}, "
+        f"2 x rank); {fix}fewer delays (--delays) or more or longer episodes"
+    )
 
 
 def _pad(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -152,3 +182,44 @@ def dsa_matrix(
     fa = [havok(x, n_delays, rank) for x in xs.values()]
     fb = [havok(y, n_delays, rank) for y in ys.values()]
     return np.array([[procrustes(a, b, iters)[0] for b in fb] for a in fa])
+
+
+def trial_mask(mask: np.ndarray, minimum: int) -> tuple[np.ndarray, int]:
+    """For DSA: `mask` (episodes, time) cut to each episode's first L steps, L the shortest
+    episode's active length. Returns (the mask, L); `VnlError` if L < `minimum`."""
+    length = int(mask.sum(axis=1).min()) if mask.size else 0
+    if length < minimum:
+        raise VnlError(
+            f"DSA needs every episode to last at least {minimum} steps (n_delays + 2); the shortest lasts {length}: "
+            "record longer episodes or use fewer --delays"
+        )
+    out = np.zeros_like(mask)
+    out[:, :length] = True
+    return out & mask, length
+
+
+def label(options: Options) -> str:
+    return "DSA angular distance (rad)"
+
+
+def parameters(options: Options) -> dict[str, Any]:
+    return {"delays": options.delays, "rank": options.rank}
+
+
+def steps(mask: np.ndarray, options: Options) -> np.ndarray:
+    """Each episode's first steps, as many as the shortest episode has (time series of equal
+    length, the trials); `VnlError` when they are too short for the delays or too few for the
+    rank (`check_transitions`)."""
+    mask, length = trial_mask(mask, options.delays + 2)
+    check_transitions(int(mask.any(axis=1).sum()) * (length - options.delays), options.rank)
+    return mask
+
+
+def matrix(a: dict[str, np.ndarray], b: dict[str, np.ndarray], options: Options) -> np.ndarray:
+    """DSA distances of every layer of `a` with every layer of `b`, each layer's (steps, units)
+    read as `options.trials` consecutive trials of equal length."""
+
+    def series(layers: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        return {k: v.reshape(options.trials, -1, v.shape[-1]) for k, v in layers.items()}
+
+    return dsa_matrix(series(a), series(b), options.delays, options.rank)

@@ -1,10 +1,10 @@
 """Encoding models: how well behaviour predicts each unit (`vnl analyze REC --method encoding`).
 
 For every layer, a ridge regression from the behaviour features (joint angles and velocities,
-centre-of-mass velocity, forward speed, foot contacts: `vnl.neuro.features.ENCODING_FEATURES`) to
+centre-of-mass velocity, forward speed, foot contacts: `vnl.recording.behaviour.ENCODING_FEATURES`) to
 each unit's activity, fitted on some episodes and scored on the others (`GroupKFold` by episode):
 the held-out R² of each unit. The control fits and scores the same model on the features moved
-in time against the activity (`shift` or `shuffle`, `vnl.neuro.features.control`): what R² a
+in time against the activity (`shift` or `shuffle`, `vnl.neuro.crossval.control`): what R² a
 model reaches on features that carry the same statistics but no alignment with the network.
 """
 
@@ -17,7 +17,10 @@ from typing import Any
 import numpy as np
 
 from vnl import durable
-from vnl.neuro import features as F
+from vnl.errors import VnlError
+from vnl.neuro import crossval as cv
+from vnl.neuro.registry import Options
+from vnl.recording import behaviour, model
 
 
 @dataclasses.dataclass
@@ -75,11 +78,11 @@ def encode_arrays(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Held-out R² per column of `y` (n, units) predicted from `x` (n, features), folds by
     `episode` (n,), and the same under the control. Returns (r2 (units,), control r2 (units,))."""
-    s = F.Samples(x, y, episode, np.zeros_like(episode), [], [])
-    k = F.folds(s, n_folds)
-    real = F.r2(y, F.ridge_predict(x, y, episode, k))
-    order = F.control(s, control, np.random.default_rng(seed))
-    ctrl = F.r2(y, F.ridge_predict(x[order], y, episode, k))
+    s = cv.Samples(x, y, episode, np.zeros_like(episode), [], [])
+    k = cv.folds(s, n_folds)
+    real = cv.r2(y, cv.ridge_predict(x, y, episode, k))
+    order = cv.control(s, control, np.random.default_rng(seed))
+    ctrl = cv.r2(y, cv.ridge_predict(x[order], y, episode, k))
     return real, ctrl
 
 
@@ -93,24 +96,55 @@ def encode(
 ) -> Encoding:
     """Encoding models of `layers` (default: every layer) from `features` (default:
     `ENCODING_FEATURES`) on the recording `ds`."""
-    layers = layers or F.layers(ds)
+    layers = layers or model.layers(ds)
     for layer in layers:
-        F.check_layer(ds, layer)
-    F.check_control(control)
-    x, labels = F.behaviour(ds, features or list(F.ENCODING_FEATURES))
+        model.check_layer(ds, layer)
+    cv.check_control(control)
+    x, labels = behaviour.features(ds, features or list(behaviour.ENCODING_FEATURES))
+    per_layer = {layer: cv.samples(ds, x, model.activity(ds, layer), labels, []) for layer in layers}
+    if not any(cv.varies(s.y).any() for s in per_layer.values() if len(s.y)):
+        raise VnlError(
+            f"every unit of {', '.join(layers)} is constant over the usable steps: no encoding model can be "
+            "scored; choose other layers (--layer) or record episodes in which the network's activity changes"
+        )
     r2, ctrl = {}, {}
     n = episodes = 0
-    for layer in layers:
-        act = F.activity(ds, layer)
-        s = F.samples(ds, x, act, labels, [])
+    for layer, s in per_layer.items():
         r2[layer], ctrl[layer] = encode_arrays(s.x, s.y, s.episode, n_folds, control, seed)
         n, episodes = len(s.episode), len(np.unique(s.episode))
     k = min(n_folds, episodes)
-    return Encoding(labels, r2, ctrl, control, k, n, episodes, F.description(ds))
+    return Encoding(labels, r2, ctrl, control, k, n, episodes, model.description(ds))
 
 
-def figure(result: Encoding, out: str | Path) -> Path:
-    """Per layer, the distribution of held-out R² over units (box and points) beside the control's."""
+def analyze(ds: Any, options: Options) -> Encoding:
+    """`encode` with the CLI's options (`vnl analyze --method encoding`)."""
+    layers = [options.layer] if options.layer else None
+    features = list(options.features) if options.features else None
+    return encode(ds, layers, features, options.folds, options.control, options.seed)
+
+
+def output_name(options: Options, ds: Any = None) -> str:
+    return "encoding"
+
+
+def report(result: Encoding) -> str:
+    lines = []
+    for layer in result.r2:
+        s = result.summary(layer)
+        lines.append(
+            f"{layer:>16}: median held-out R² {_f(s['r2_median'])} (control {_f(s['control_r2_median'])}), "
+            f"90th percentile {_f(s['r2_p90'])}, {s['units_scored']} units"
+        )
+    return "\n".join(lines)
+
+
+def _f(v: float | None) -> str:
+    return "n/a" if v is None else f"{v:.3f}"
+
+
+def figure(result: Encoding, out: str | Path, dt: float = 1.0) -> Path:
+    """Per layer, the distribution of held-out R² over units (box and points) beside the
+    control's (`dt` unused: nothing is drawn over time)."""
     from matplotlib.figure import Figure
 
     names = list(result.r2)

@@ -26,7 +26,9 @@ import numpy as np
 
 from vnl import durable
 from vnl.errors import VnlError
-from vnl.neuro import features as F
+from vnl.neuro import crossval as cv
+from vnl.neuro.registry import Options
+from vnl.recording import behaviour, model
 
 POSE_FEATURES = ("joint_angle", "forward_speed", "foot_contact")
 METHODS = ("hmm", "kmeans")
@@ -126,9 +128,23 @@ def _state_accuracy(x: np.ndarray, labels: np.ndarray, episode: np.ndarray, k: i
     from sklearn.pipeline import make_pipeline
     from sklearn.preprocessing import StandardScaler
 
-    model = make_pipeline(StandardScaler(), LogisticRegression(max_iter=500))
-    pred = cross_val_predict(model, x, labels, groups=episode, cv=GroupKFold(k))
+    classifier = make_pipeline(StandardScaler(), LogisticRegression(max_iter=500))
+    pred = cross_val_predict(classifier, x, labels, groups=episode, cv=GroupKFold(k))
     return float(balanced_accuracy_score(labels, pred))
+
+
+def _check_decodable(labels: np.ndarray, episode: np.ndarray, folds: int, method: str, k: int) -> None:
+    """`VnlError` unless the state can be decoded by episode-wise cross-validation: two states or
+    more, and two or more in the training episodes of every fold (the control's labels move
+    within episodes, so its folds hold the same states)."""
+    if k < 2:
+        other = "kmeans" if method == "hmm" else "hmm"
+        raise VnlError(
+            f"the {method} segmentation put all {len(labels)} steps in one state: there is no state to decode; "
+            f"try --segmentation {other}, or record more varied episodes"
+        )
+    fix = "use fewer --folds or fewer --states, or record more episodes (vnl record --episodes)"
+    cv.check_classes(labels, episode, folds, "state", fix)
 
 
 def states(
@@ -142,26 +158,24 @@ def states(
     seed: int = 0,
 ) -> States:
     """Segments the recording's kinematics into `k` states and relates each layer to them."""
-    layers = layers or F.layers(ds)
+    layers = layers or model.layers(ds)
     for layer in layers:
-        F.check_layer(ds, layer)
-    F.check_control(control)
-    x, labels_x = F.behaviour(ds, [n for n in POSE_FEATURES if n in ds] or list(POSE_FEATURES))
-    first = F.activity(ds, layers[0])
-    s = F.samples(ds, x, first, labels_x, [])
-    folds = F.folds(s, n_folds)
+        model.check_layer(ds, layer)
+    cv.check_control(control)
+    x, labels_x = behaviour.features(ds, [n for n in POSE_FEATURES if n in ds] or list(POSE_FEATURES))
+    first = model.activity(ds, layers[0])
+    s = cv.samples(ds, x, first, labels_x, [])
+    folds = cv.folds(s, n_folds)
     lengths = [int((s.episode == e).sum()) for e in np.unique(s.episode)]  # samples are episode-major
     labels = segment(_pca(s.x, components), lengths, k, method, seed)
     k = int(labels.max()) + 1
+    _check_decodable(labels, s.episode, folds, method, k)
     keep = (s.episode, s.time)
     means, acc, ctrl = {}, {}, {}
-    order = F.control(s, control, np.random.default_rng(seed))
+    order = cv.control(s, control, np.random.default_rng(seed))
     for layer in layers:
-        act = F.activity(ds, layer)[keep]
+        act = model.activity(ds, layer)[keep]
         means[layer] = np.stack([act[labels == j].mean(0) for j in range(k)])
-        if len(np.unique(labels)) < 2:
-            acc[layer] = ctrl[layer] = float("nan")
-            continue
         acc[layer] = _state_accuracy(act, labels, s.episode, folds)
         ctrl[layer] = _state_accuracy(act, labels[order], s.episode, folds)
     state_features = np.stack([s.x[labels == j].mean(0) for j in range(k)])
@@ -178,7 +192,25 @@ def states(
         ctrl,
         control,
         folds,
-        F.description(ds),
+        model.description(ds),
+    )
+
+
+def analyze(ds: Any, options: Options) -> States:
+    """`states` with the CLI's options (`vnl analyze --method states`)."""
+    layers = [options.layer] if options.layer else None
+    return states(ds, options.states, options.segmentation, layers, options.folds, options.control, seed=options.seed)
+
+
+def output_name(options: Options, ds: Any = None) -> str:
+    return "states"
+
+
+def report(result: States) -> str:
+    return "\n".join(
+        f"{layer:>16}: state decoded with balanced accuracy {result.accuracy[layer]:.2f} "
+        f"(control {result.control_accuracy[layer]:.2f}, chance {1 / result.k:.2f})"
+        for layer in result.means
     )
 
 

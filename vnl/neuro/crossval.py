@@ -1,8 +1,8 @@
-"""Behaviour features and network activity of a recording as (samples, k) matrices, the
-episode-wise cross-validation and the controls that every analysis in `vnl.neuro` shares.
+"""What the cross-validated analyses of `vnl.neuro` share: aligned samples, folds by episode,
+the controls, R² and a ridge regression.
 
 A recording (`vnl record`) holds per (episode, time): every layer's activity and the behaviour
-variables of `vnl.behaviour`. The analyses use the active steps whose features are finite, keep
+features of `vnl.recording.behaviour`. The analyses use the active steps whose features are finite, keep
 which episode each came from (folds never split an episode), and compare every score against a
 control: the same model fitted and scored on features circularly shifted in time within each
 episode (`shift`: keeps each signal's own autocorrelation, breaks its alignment with the network)
@@ -18,8 +18,6 @@ import numpy as np
 
 from vnl.errors import VnlError
 
-ENCODING_FEATURES = ("joint_angle", "joint_velocity", "com_velocity", "forward_speed", "foot_contact")
-TARGETS = ("forward_speed", "gait_phase", "gap_distance", "joint:<name>", "<any per-step variable>")
 CONTROLS = ("shift", "shuffle")
 
 
@@ -34,82 +32,6 @@ class Samples:
     time: np.ndarray
     x_labels: list[str]
     y_labels: list[str]
-
-
-def layers(ds: Any) -> list[str]:
-    """The recorded network layers (`policy_hidden_0`, ..., `value_output`)."""
-    return [v for v in ds.data_vars if v.startswith(("policy_", "value_"))]
-
-
-def check_layer(ds: Any, layer: str) -> None:
-    """`VnlError` unless `layer` is one of the recording's layers."""
-    if layer not in layers(ds):
-        raise VnlError(f"no layer {layer!r} in the recording; layers: {', '.join(layers(ds))}")
-
-
-def last_hidden_layer(ds: Any) -> str:
-    """The policy's last hidden layer (the default population to decode from)."""
-    hidden = sorted((v for v in layers(ds) if v.startswith("policy_hidden_")), key=lambda n: int(n.rsplit("_", 1)[1]))
-    if not hidden:
-        raise VnlError("the recording has no policy hidden layer; choose one with --layer")
-    return hidden[-1]
-
-
-def activity(ds: Any, layer: str) -> np.ndarray:
-    """`layer`'s activity (episode, time, units) as float64."""
-    check_layer(ds, layer)
-    return np.asarray(ds[layer].values, np.float64)
-
-
-def _per_step(ds: Any, name: str) -> tuple[np.ndarray, list[str]]:
-    """A recorded variable as (episode, time, k) with its column labels."""
-    v = ds[name]
-    if v.dims[:2] != ("episode", "time") or v.ndim > 3:
-        raise VnlError(f"{name} is not a per-step variable (dims {v.dims})")
-    values = np.asarray(v.values, np.float64)
-    if v.ndim == 2:
-        return values[..., None], [name]
-    return values, [f"{name}[{c}]" for c in np.asarray(ds[v.dims[2]].values)]
-
-
-def behaviour(ds: Any, names: tuple[str, ...] | list[str] = ENCODING_FEATURES) -> tuple[np.ndarray, list[str]]:
-    """The behaviour features `names` side by side: (episode, time, features) and their labels.
-    `gait_phase` enters as its cosine and sine."""
-    missing = [n for n in names if n not in ds and not (n == "gait_phase" and "gait_phase" in ds)]
-    if missing:
-        present = [v for v in ENCODING_FEATURES + ("gait_phase", "gap_distance") if v in ds]
-        raise VnlError(
-            f"the recording has no {', '.join(missing)}: record it again with this vnl "
-            f"(behaviour features in it: {', '.join(present) or 'none'})"
-        )
-    parts, labels = [], []
-    for n in names:
-        values, lab = target(ds, n) if n == "gait_phase" else _per_step(ds, n)
-        parts.append(values)
-        labels += lab
-    return np.concatenate(parts, axis=-1), labels
-
-
-def target(ds: Any, name: str) -> tuple[np.ndarray, list[str]]:
-    """A decoding target (episode, time, k) and its labels: `forward_speed`, `gait_phase` (its
-    cosine and sine: a phase is circular), `gap_distance`, `joint:<joint name>` (that joint's
-    angle) or any per-step variable of the recording (`x_velocity`, `reward`, ...)."""
-    if name.startswith("joint:"):
-        joint = name.split(":", 1)[1]
-        if "joint_angle" not in ds:
-            raise VnlError("the recording has no joint_angle; record it again with this vnl")
-        names = [str(j) for j in ds["joint"].values]
-        match = [j for j in names if j == joint or j.split("/")[-1] == joint]
-        if not match:
-            raise VnlError(f"no joint {joint!r}; joints: {', '.join(n.split('/')[-1] for n in names)}")
-        return np.asarray(ds["joint_angle"].sel(joint=match[0]).values, np.float64)[..., None], [name]
-    if name not in ds.data_vars:
-        per_step = [v for v in ds.data_vars if ds[v].dims == ("episode", "time")]
-        raise VnlError(f"no target {name!r}; choose forward_speed, gait_phase, joint:<name> or one of {per_step}")
-    if name == "gait_phase":
-        phase = 2 * np.pi * np.asarray(ds[name].values, np.float64)
-        return np.stack([np.cos(phase), np.sin(phase)], axis=-1), ["cos(gait_phase)", "sin(gait_phase)"]
-    return _per_step(ds, name)
 
 
 def samples(ds: Any, x: np.ndarray, y: np.ndarray, x_labels: list[str], y_labels: list[str]) -> Samples:
@@ -157,13 +79,45 @@ def control(s: Samples, kind: str, rng: np.random.Generator) -> np.ndarray:
     return order
 
 
+def varies(y: np.ndarray) -> np.ndarray:
+    """Per column of `y` (n, q): whether it varies enough for an R² (its sum of squares about its
+    mean above 1e-12 per sample; below, R² is 0/0)."""
+    return ((y - y.mean(0)) ** 2).sum(0) > 1e-12 * len(y)
+
+
 def r2(y: np.ndarray, pred: np.ndarray) -> np.ndarray:
     """Coefficient of determination per column of `y` (n, q) against `pred` (n, q), NaN for a
-    constant column: 1 - SSE / SST, SST about the column's mean."""
+    constant column (`varies`): 1 - SSE / SST, SST about the column's mean."""
     sst = ((y - y.mean(0)) ** 2).sum(0)
     sse = ((y - pred) ** 2).sum(0)
     with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(sst > 1e-12 * len(y), 1 - sse / sst, np.nan)
+        return np.where(varies(y), 1 - sse / sst, np.nan)
+
+
+def check_target(s: Samples, name: str) -> None:
+    """`VnlError` when the target `s.y` is constant over the usable steps: no R² can be estimated."""
+    if varies(s.y).any():
+        return
+    value = ", ".join(f"{v:g}" for v in s.y[0]) if len(s.y) else "none"
+    raise VnlError(
+        f"the target {name} is constant over the {len(s.y)} usable steps ({value}): there is nothing to decode; "
+        "choose another --target (e.g. forward_speed, joint:<name>) or record episodes in which it changes"
+    )
+
+
+def check_classes(labels: np.ndarray, episode: np.ndarray, n_folds: int, what: str, fix: str) -> None:
+    """`VnlError` unless the training episodes of every fold (scikit-learn's `GroupKFold` by
+    `episode`, `n_folds`) hold at least two of the classes `labels`: a classifier cannot be
+    fitted on one class. `what` names the classes, `fix` says what to change."""
+    from sklearn.model_selection import GroupKFold
+
+    for i, (train, _) in enumerate(GroupKFold(n_folds).split(labels, labels, episode)):
+        present = np.unique(labels[train])
+        if len(present) < 2:
+            raise VnlError(
+                f"the training episodes of fold {i + 1} of {n_folds} hold only {what} {present[0]} "
+                f"({len(train)} steps): a classifier needs at least two; {fix}"
+            )
 
 
 ALPHAS = np.logspace(-2, 6, 17)  # ridge penalties, on standardised features
@@ -208,8 +162,3 @@ def ridge_predict(x: np.ndarray, y: np.ndarray, episode: np.ndarray, n_folds: in
         p = _ridge(x[train], y[train], x[test], ALPHAS)
         pred[test] = p[best, :, np.arange(y.shape[1])].T
     return pred
-
-
-def description(ds: Any) -> str:
-    """A one-line description of the recording for figure titles."""
-    return f"{ds.attrs.get('env', '?')} @ step {ds.attrs.get('checkpoint_step', '?')}"

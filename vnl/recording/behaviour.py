@@ -1,4 +1,6 @@
-"""Behaviour features of a recording, computed at record time (`vnl record`, both formats).
+"""Behaviour features of a recording: computed at record time (`vnl record`, both formats) by
+`variables`, and read back as (episode, time, k) matrices by `features` and `target` (what the
+analyses of `vnl.neuro` fit and score).
 
 From the recorded physics states of a walker task (the rollout's qpos, qvel and mocap positions):
 
@@ -23,7 +25,9 @@ From the recorded physics states of a walker task (the rollout's qpos, qvel and 
   far edge passed (`measure/gaps_crossed`), the bowl left (`measure/escaped`). The last two only on
   tasks that have them.
 
-Steps after an episode ended (`active` 0) have NaN features and no contacts or events.
+Steps after an episode ended (`active` 0) have NaN features and no contacts or events. Read back,
+`gait_phase` enters as its cosine and sine (a phase is circular), and a joint is a target by its
+name (`joint:<name>`).
 """
 
 from __future__ import annotations
@@ -32,9 +36,14 @@ from typing import Any
 
 import numpy as np
 
-from vnl.tasks.base import body_id
+from vnl.errors import VnlError
+from vnl.recording import model
 
 Variable = tuple[tuple[str, ...], np.ndarray, dict[str, str]]
+
+ENCODING_FEATURES = ("joint_angle", "joint_velocity", "com_velocity", "forward_speed", "foot_contact")
+"""The features an encoding model predicts each unit from, by default."""
+TARGETS = ("forward_speed", "gait_phase", "gap_distance", "joint:<name>", "<any per-step variable>")
 
 EVENTS = {  # event name -> the task measure that counts it
     "gap_crossed": "measure/gaps_crossed",
@@ -168,6 +177,8 @@ def variables(env: Any, raw: dict[str, Any]) -> tuple[dict[str, Variable], dict[
     `layout_start`/`layout_length` (E, P)). Returns (variables, coordinates, attributes)."""
     import mujoco
 
+    from vnl.tasks.base import body_id
+
     et = ("episode", "time")
     active = np.asarray(raw["active"]) > 0
     ev = events(raw["metrics"], np.asarray(raw["done"]), active)
@@ -210,3 +221,58 @@ def variables(env: Any, raw: dict[str, Any]) -> tuple[dict[str, Variable], dict[
         desc = "distance along x from the root body to the near edge of the next gap (0 over a gap)"
         out["gap_distance"] = (et, np.where(active, dist, np.nan), {"units": "m", "description": desc})
     return out, coords, attrs
+
+
+# ---- read back: features and targets as (episode, time, k) matrices ---------------------------
+
+
+def _per_step(ds: Any, name: str) -> tuple[np.ndarray, list[str]]:
+    """A recorded variable as (episode, time, k) with its column labels."""
+    v = ds[name]
+    if v.dims[:2] != model.STEP_DIMS or v.ndim > 3:
+        raise VnlError(f"{name} is not a per-step variable (dims {v.dims})")
+    values = np.asarray(v.values, np.float64)
+    if v.ndim == 2:
+        return values[..., None], [name]
+    return values, [f"{name}[{c}]" for c in np.asarray(ds[v.dims[2]].values)]
+
+
+def features(ds: Any, names: tuple[str, ...] | list[str] = ENCODING_FEATURES) -> tuple[np.ndarray, list[str]]:
+    """The behaviour features `names` side by side: (episode, time, features) and their labels.
+    `gait_phase` enters as its cosine and sine."""
+    absent = [n for n in names if n not in ds]
+    if absent:
+        present = [v for v in ENCODING_FEATURES + ("gait_phase", "gap_distance") if v in ds]
+        raise VnlError(
+            f"the recording has no {', '.join(absent)}: record it again with this vnl "
+            f"(behaviour features in it: {', '.join(present) or 'none'})"
+        )
+    parts, labels = [], []
+    for n in names:
+        values, lab = target(ds, n) if n == "gait_phase" else _per_step(ds, n)
+        parts.append(values)
+        labels += lab
+    return np.concatenate(parts, axis=-1), labels
+
+
+def target(ds: Any, name: str) -> tuple[np.ndarray, list[str]]:
+    """A decoding target (episode, time, k) and its labels: `forward_speed`, `gait_phase` (its
+    cosine and sine: a phase is circular), `gap_distance`, `joint:<joint name>` (that joint's
+    angle) or any per-step variable of the recording (`x_velocity`, `reward`, ...)."""
+    if name.startswith("joint:"):
+        joint = name.split(":", 1)[1]
+        if "joint_angle" not in ds:
+            raise VnlError("the recording has no joint_angle; record it again with this vnl")
+        names = [str(j) for j in ds["joint"].values]
+        match = [j for j in names if j == joint or j.split("/")[-1] == joint]
+        if not match:
+            raise VnlError(f"no joint {joint!r}; joints: {', '.join(n.split('/')[-1] for n in names)}")
+        return np.asarray(ds["joint_angle"].sel(joint=match[0]).values, np.float64)[..., None], [name]
+    if name not in ds.data_vars:
+        raise VnlError(
+            f"no target {name!r}; choose forward_speed, gait_phase, joint:<name> or one of {model.per_step(ds)}"
+        )
+    if name == "gait_phase":
+        phase = 2 * np.pi * np.asarray(ds[name].values, np.float64)
+        return np.stack([np.cos(phase), np.sin(phase)], axis=-1), ["cos(gait_phase)", "sin(gait_phase)"]
+    return _per_step(ds, name)
