@@ -35,8 +35,12 @@ def test_a_run_that_ignores_sigint_is_killed_with_its_whole_process_group_at_its
         "print('[vnl] compiling forever, grandchild', p.pid, flush=True); time.sleep(300)"
     )
     with open(tmp_path / "log", "w") as log:
-        t = time.monotonic()
-        run = gpu_check.Run([sys.executable, "-c", script], log, "stuck", t + 1.0, budget=60, grace=1.0)
+        run = gpu_check.Run([sys.executable, "-c", script], log, "stuck", time.monotonic() + 600, budget=60, grace=1.0)
+        for _ in range(600):  # until it ignores SIGINT and its grandchild runs
+            if run.last is not None:
+                break
+            time.sleep(0.1)
+        t = run.deadline = time.monotonic()
         code = run.wait()
     assert time.monotonic() - t < 15 and code == -signal.SIGKILL
     assert run.stopped_by == "SIGKILL, 1 s after SIGINT" and run.ready is None
