@@ -150,3 +150,42 @@ def test_vnl_train_imports_none_of_the_neuroscience_tools():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.strip().splitlines()[-1] == "[]"
+
+
+def documented_modules() -> set[str]:
+    """The modules (paths under vnl/) that the developer guide's Layout block names: an entry
+    `pkg/  a.py, b.py (...)` names pkg/__init__.py, pkg/a.py, pkg/b.py; `cmd_<name>.py` any cmd_*.py."""
+    text = (ROOT / "docs" / "developers" / "index.md").read_text()
+    block = re.search(r"## Layout\n\n```\nvnl/\n(.*?)```", text, re.S)
+    assert block, "docs/developers/index.md has no Layout block starting with vnl/"
+    entries: list[str] = []
+    for line in block.group(1).splitlines():
+        if re.match(r"  \S", line):
+            entries.append(line.strip())
+        elif line.startswith("    ") and entries:
+            entries[-1] += " " + line.strip()
+        else:
+            break  # the first line outside vnl/ (benchmarks/, scripts/, ...)
+    found = set()
+    for entry in entries:
+        head = entry.split()[0]
+        package = head if head.endswith("/") else ""
+        if package:
+            found.add(package + "__init__.py")
+        for token in re.findall(r"[\w<>/]+(?:\.py|/)", entry):
+            path = token if "/" in token.rstrip("/") or not package else package + token
+            found.add(path + "__init__.py" if path.endswith("/") else path)
+    return found
+
+
+def test_every_module_is_in_the_developer_guides_layout():
+    documented = documented_modules()
+    patterns = [
+        re.compile(re.sub(r"<\w+>", r"\\w+", re.escape(d).replace(r"\<", "<").replace(r"\>", ">"))) for d in documented
+    ]
+    missing = [
+        str(p.relative_to(PACKAGE))
+        for p in sorted(PACKAGE.rglob("*.py"))
+        if not any(pat.fullmatch(str(p.relative_to(PACKAGE))) for pat in patterns)
+    ]
+    assert not missing, f"modules missing from docs/developers/index.md's Layout: {missing}"
