@@ -389,3 +389,9 @@ def test_an_env_page_shows_the_env_rendered_at_reset():
     assert image.shape == (72, 96, 3) and image.std() > 10  # a scene, not a blank frame
     page = reference.env_markdown("ant_run")
     assert "![ant_run right after reset, from its default video camera](ant_run.png)" in page
+
+
+def test_no_user_page_says_a_sentence_or_shows_an_image_twice():
+    faults = [f"{page}: {f}" for page, text in pages.user_pages().items() for f in pages.repeats(text)]
+    assert not faults, "\n".join(faults)
+    assert pages.repeats("![a](x.png)\n\nText.\n\n![a](x.png)\n") == ["image twice: x.png"]

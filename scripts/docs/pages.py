@@ -439,3 +439,15 @@ def preset_comments(yaml_text: str) -> str:
             run.append(comment.strip())
     paras.append(" ".join(run))
     return "\n\n".join(p for p in paras if p)
+
+
+def repeats(markdown: str) -> list[str]:
+    """Sentences (of some length) and images a page shows twice: the traces of pages grown by
+    appending (issue 52: the first-run page showed one image twice and repeated its sentences)."""
+    text = prose(markdown)
+    sentences = [s.strip() for s in re.split(r"(?<=[.!?])\s+", text) if len(s.strip()) > 60]
+    images = re.findall(r"!\[[^\]]*\]\(([^)\s]+)\)", text)
+    twice = [s for s in dict.fromkeys(sentences) if sentences.count(s) > 1]
+    return [f"sentence twice: {s[:80]!r}" for s in twice] + [
+        f"image twice: {i}" for i in dict.fromkeys(images) if images.count(i) > 1
+    ]
