@@ -332,7 +332,8 @@ def figure(results: dict[str, Any], trace: Any, dt: float, out: Path) -> Path:
         cx.set_title("encoding: behaviour features -> each unit", fontsize=8)
         cx.set_ylim(min(-0.45, cx.get_ylim()[0]), 1.05)
         cx.legend(fontsize=7, loc="lower center", ncol=3)
-    fig.suptitle(f"{results['env']}: {results['run']} (trained step {results['recording']['trained_step']:,})")
+    run = Path(results["run"]).name  # the run's name, not the machine's path to it
+    fig.suptitle(f"{results['env']}: {run} (trained step {results['recording']['trained_step']:,})")
     fig.tight_layout()
     fig.savefig(out, dpi=100)
     return out

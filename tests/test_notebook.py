@@ -1,31 +1,25 @@
-"""docs/tutorials/quickstart.ipynb runs end to end (executed with nbclient in a fresh kernel)."""
+"""The tutorials (docs/tutorials/*.ipynb) run end to end, executed with nbclient in a fresh kernel
+by scripts/docs/notebooks.py, and what they print is clean enough to be stored as the site shows it
+(no warning, local path or error: `notebooks.faults`). The stored outputs are checked without
+running anything in tests/test_docs.py."""
 
-import os
+import sys
 from pathlib import Path
 
-import nbformat
 import pytest
-from nbclient import NotebookClient
 
 pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("notebook")]
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "scripts" / "docs"))
+import notebooks  # noqa: E402  (scripts/docs/notebooks.py)
 
 
-def execute(name: str, tmp_path: Path) -> nbformat.NotebookNode:
-    """Runs docs/tutorials/<name>.ipynb in a fresh kernel (in `tmp_path`) and writes the executed
-    notebook to build/notebooks/<name>.ipynb, for the docs to show its outputs."""
-    nb = nbformat.read(ROOT / "docs" / "tutorials" / f"{name}.ipynb", as_version=4)
-    client = NotebookClient(nb, timeout=900, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}})
-    env = {
-        **os.environ,
-        "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])),  # this checkout's vnl
-        "VNL_COMPILE_CACHE": str(tmp_path / "jax-cache"),
-    }
-    client.execute(env=env)
-    built = ROOT / "build" / "notebooks"
-    built.mkdir(parents=True, exist_ok=True)
-    nbformat.write(nb, built / f"{name}.ipynb")
+def execute(name: str, tmp_path: Path):
+    """Runs docs/tutorials/<name>.ipynb in a fresh kernel (in `tmp_path`); fails if the copy it
+    would store has an error, a warning, a local path or a placeholder in its outputs."""
+    nb = notebooks.execute(name, tmp_path)
+    assert notebooks.faults(notebooks.for_storage(nb)) == []
     return nb
 
 
@@ -56,4 +50,3 @@ def test_rat_to_neurons_notebook_runs(tmp_path):
     assert any("application/vnd.jupyter.widget-view+json" in o.get("data", {}) for o in outputs)  # the viewer
     rat = next((tmp_path / "runs").iterdir()) / "rat"
     assert (rat / "record.nwb").stat().st_size > 100_000
-    assert (ROOT / "build" / "notebooks" / "rat-to-neurons.ipynb").is_file()

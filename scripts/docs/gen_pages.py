@@ -1,6 +1,7 @@
 """Writes the generated pages of the docs site at build time (mkdocs-gen-files runs this file):
-the CLI reference, the config keys, one page per registered env, and the result cards. None of
-them is stored in docs/: they are made from the code and the results data on every build.
+the CLI reference, the config keys, one page per registered env with a picture of it, and the
+result cards. None of them is stored in docs/: they are made from the code and the results data on
+every build. (The tutorials are stored with their outputs: scripts/docs/notebooks.py.)
 """
 
 from __future__ import annotations
@@ -33,22 +34,9 @@ with mkdocs_gen_files.open("reference/envs/index.md", "w") as f:
 for name in names:
     with mkdocs_gen_files.open(f"reference/envs/{name}.md", "w") as f:
         f.write(reference.env_markdown(name))
+    with mkdocs_gen_files.open(f"reference/envs/{name}.png", "wb") as f:
+        f.write(reference.env_picture(name))  # rendered from the env at reset (OpenGL: EGL or OSMesa)
 
 for page, content in results.pages(Path(__file__).resolve().parents[2] / "docs").items():
     with mkdocs_gen_files.open(page, "wb" if isinstance(content, bytes) else "w") as f:
         f.write(content)
-
-# The tutorials with their outputs: the notebook tests (tests/test_notebook.py) execute each
-# tutorial and write it to build/notebooks/; the site shows that copy when its cells are the
-# tutorial's own (else the tutorial as written, without outputs).
-ROOT = Path(__file__).resolve().parents[2]
-for source in sorted((ROOT / "docs" / "tutorials").glob("*.ipynb")):
-    executed = ROOT / "build" / "notebooks" / source.name
-    if executed.is_file():
-        import json
-
-        cells = [(c["cell_type"], "".join(c["source"])) for c in json.loads(source.read_text())["cells"]]
-        ran = json.loads(executed.read_text())
-        if [(c["cell_type"], "".join(c["source"])) for c in ran["cells"]] == cells:
-            with mkdocs_gen_files.open(f"tutorials/{source.name}", "w") as f:
-                f.write(executed.read_text())

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import ast
 import dataclasses
+import html
 import inspect
 import io
 import sys
@@ -30,7 +31,20 @@ def _help(parser: argparse.ArgumentParser, name: str) -> str:
 
 
 def _cell(text: Any) -> str:
-    return str(text).replace("|", "\\|").replace("\n", " ")
+    """`text` as one Markdown table cell: on one line; outside its `code spans`, `|` escaped (a
+    column separator otherwise) and `<`, `>`, `&` as entities (else `<env>` is an unknown HTML tag the
+    browser drops); inside code spans, as written (Python-Markdown's tables leave a span's `|` alone,
+    and an escape there would show)."""
+    parts = str(text).replace("\n", " ").split("`")
+    for i in range(0, len(parts), 2):  # the even parts are outside code spans
+        parts[i] = html.escape(parts[i], quote=False).replace("|", "\\|")
+    return "`".join(parts) if len(parts) % 2 else html.escape(str(text), quote=False).replace("|", "\\|")
+
+
+def _code(text: Any) -> str:
+    """`text` as one inline code span (for a table cell: one line; a backtick inside fenced by two)."""
+    text = str(text).replace("\n", " ")
+    return f"`` {text} ``" if "`" in text else f"`{text}`"
 
 
 def flag_rows(p: argparse.ArgumentParser) -> list[tuple[str, str, str, str]]:
@@ -50,7 +64,7 @@ def flag_rows(p: argparse.ArgumentParser) -> list[tuple[str, str, str, str]]:
             if a.nargs in ("+", "*"):
                 value += " ..."
         repeat = " (repeatable)" if isinstance(a, argparse._AppendAction) else ""
-        default = "" if a.default in (None, False, [], argparse.SUPPRESS) else f"`{a.default}`"
+        default = "" if a.default in (None, False, [], argparse.SUPPRESS) else _code(a.default)
         rows.append((flags, value + repeat, default, _cell(a.help or "")))
     return rows
 
@@ -65,7 +79,7 @@ def cli_markdown(parser: argparse.ArgumentParser) -> str:
         "",
     ]
     for name, p in _subparsers(parser).items():
-        out += [f"## vnl {name}", "", _help(parser, name), "", "```", p.format_usage().strip(), "```", ""]
+        out += [f"## vnl {name}", "", _cell(_help(parser, name)), "", "```", p.format_usage().strip(), "```", ""]
         out += ["| flag | value | default | what it does |", "|---|---|---|---|"]
         out += [f"| {' | '.join(row)} |" for row in flag_rows(p)]
         out.append("")
@@ -124,7 +138,7 @@ def config_section(cls: type, prefix: str) -> list[str]:
     out = [inspect.cleandoc(cls.__doc__ or ""), ""] if cls.__doc__ else []
     out += ["| key | type | default | notes |", "|---|---|---|---|"]
     for f in field_docs(cls):
-        out.append(f"| `{prefix}{f.name}` | `{_cell(f.type)}` | `{_cell(f.default)}` | {_cell(f.doc)} |")
+        out.append(f"| `{prefix}{f.name}` | {_code(f.type)} | {_code(f.default)} | {_cell(f.doc)} |")
     return out + [""]
 
 
@@ -221,7 +235,8 @@ def env_markdown(name: str) -> str:
 
     entry = registry.entry(name)
     task = sys.modules[entry.factory.__module__]
-    out = [f"# {name}", "", entry.description, ""]
+    out = [f"# {name}", "", _cell(entry.description), ""]
+    out += [f"![{name} right after reset, from its default video camera]({name}.png)", ""]
     if name in registry.ALIASES:
         alias = registry.ALIASES[name]
         out += [f"Its defaults are those of [{alias}]({alias}.md), for any walker.", ""]
@@ -272,7 +287,7 @@ def env_markdown(name: str) -> str:
     ]
     default = registry.default_config(name)
     for f in all_field_docs(type(default)):
-        out.append(f"| `{f.name}` | `{_cell(f.type)}` | `{_cell(_value(getattr(default, f.name)))}` | {_cell(f.doc)} |")
+        out.append(f"| `{f.name}` | {_code(f.type)} | {_code(_value(getattr(default, f.name)))} | {_cell(f.doc)} |")
     out += ["", "## Presets", ""]
     path = presets.path(name)
     if path is None:
@@ -291,22 +306,85 @@ def env_markdown(name: str) -> str:
     return "\n".join(out)
 
 
-def envs_index(names: list[str]) -> str:
-    """The table of registered envs: description, observation size (cpu preset), actions."""
+def envs_table(names: list[str], link: str = "{name}.md") -> list[str]:
+    """The table `vnl list` prints, from the registry and each env as `vnl.make` builds it: name
+    (linked to its page, `link` formatted with the name), observation size, actions, control step,
+    episode length, description."""
     from vnl.envs import registry
 
     out = [
-        "# Environments",
-        "",
-        "Every registered env (`vnl list`), generated from the registry when the site is built. Each page",
-        "gives its observation (the same under every preset), the reward terms, task measures, cameras, config",
-        "keys and presets.",
-        "",
-        "| env | observation | actions | what it is |",
-        "|---|---:|---:|---|",
+        "| env | observation | actions | control step | episode | what it is |",
+        "|---|---:|---:|---:|---:|---|",
     ]
     for name in names:
         layout, env = _built(name, "cpu")
         size = sum(w for _, w in layout)
-        out.append(f"| [{name}]({name}.md) | {size} | {env.action_size} | {_cell(registry.entry(name).description)} |")
+        steps = env.config.episode_length
+        out.append(
+            f"| [{name}]({link.format(name=name)}) | {size} | {env.action_size} | {env.dt:.3g} s | "
+            f"{steps} steps ({steps * env.dt:g} s) | {_cell(registry.entry(name).description)} |"
+        )
+    return out
+
+
+def envs_index(names: list[str]) -> str:
+    """The table of registered envs: description, observation size, actions, time."""
+    out = [
+        "# Environments",
+        "",
+        "Every registered env (`vnl list`), generated from the registry when the site is built. Each page",
+        "shows the env at reset and gives its observation (the same under every preset), the reward terms, task",
+        "measures, cameras, config keys and presets.",
+        "",
+        *envs_table(names),
+    ]
     return "\n".join(out + [""])
+
+
+def env_picture(name: str, width: int = 480, height: int = 360) -> bytes:
+    """A PNG of env `name` as `vnl.make(name)` builds it (MuJoCo C physics), right after
+    `reset(PRNGKey(0))`, from the camera its videos use by default (`vnl.io.video.resolve_camera`).
+    Needs OpenGL (EGL or OSMesa), as `vnl render` does."""
+    import io as _io
+
+    import jax
+    import numpy as np
+    from PIL import Image
+
+    import vnl
+    from vnl.io import video
+
+    env = vnl.make(name, impl="c", threads=1)
+    state = jax.jit(env.reset)(jax.random.PRNGKey(0))
+    qpos, mocap = np.asarray(state.data.qpos)[None], np.asarray(state.data.mocap_pos)[None]
+    frame = video.render_frames(env.mj_model, qpos, None, width, height, mocap_pos=mocap)[0]
+    buf = _io.BytesIO()
+    Image.fromarray(frame).save(buf, format="PNG", optimize=True)
+    return buf.getvalue()
+
+
+GENERIC_ENV = "brax_ant_run"  # an env without a preset file of its own: it trains the generic presets
+
+
+def presets_table(env: str = GENERIC_ENV) -> list[str]:
+    """The generic presets side by side (the PPO and network keys where `cpu`, `gpu` and `tiny`
+    differ), resolved for an env without a preset file of its own; an env's file changes some of
+    them (its reference page shows the file)."""
+    from vnl import typed_config
+    from vnl.train import config as train_config
+    from vnl.train import presets
+
+    def flat(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        for k, v in d.items():
+            out.update(flat(v, f"{prefix}{k}.") if isinstance(v, dict) and v else {f"{prefix}{k}": v})
+        return out
+
+    names = presets.names()
+    resolved = {p: flat(typed_config.to_dict(train_config.build(env, p))) for p in names}
+    keys = [k for k in resolved[names[0]] if k.startswith(("ppo.", "network."))]
+    differ = [k for k in keys if len({repr(resolved[p].get(k)) for p in names}) > 1]
+    out = ["| key | " + " | ".join(f"`{p}`" for p in names) + " |", "|---|" + "---:|" * len(names)]
+    for k in differ:
+        out.append(f"| `{k}` | " + " | ".join(_code(_value(resolved[p].get(k))) for p in names) + " |")
+    return out

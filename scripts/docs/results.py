@@ -159,13 +159,15 @@ def curves_png(entry: dict[str, Any]) -> bytes:
     return buf.getvalue()
 
 
-def expect_table(data: dict[str, Any], link: bool = False) -> str:
+def expect_table(data: dict[str, Any], link: bool | str = False) -> str:
     """README's "what to expect": env; what its cpu preset learns (the task's first measure, mean
     over seeds); CPU minutes; GPU. `link`: each env links to its card (on the site, where the
-    cards are generated; the README names them only)."""
+    cards are generated; the README names them only): True from results/, or a path to format
+    with `env` (`../results/{env}.md`)."""
     out = ["| env | what the `cpu` preset learns (mean over seeds) | CPU minutes | GPU |", "|---|---|---:|---|"]
+    target = "{env}.md" if link is True else link
     for env in ordered(data):
-        name = f"[{env}]({env}.md)" if link else env
+        name = f"[{env}]({target.format(env=env)})" if target else env
         if env not in data:
             out.append(f"| {name} | not measured yet | | not measured |")
             continue

@@ -162,7 +162,7 @@ def make(name: str, vision: bool | dict[str, Any] | Any = False, **overrides: An
 
     `vision=True` (the env's own camera settings), a dict of settings that change some of them
     (camera, width, height, mode, ...) or a whole `vnl.vision.VisionConfig` returns the env with a
-    dict observation {"state", "pixels/<camera>"} rendered by the in-graph camera
+    dict observation `{"state", "pixels/<camera>"}` rendered by the in-graph camera
     (`vnl.vision.VisionEnv`).
 
     Bad names, unknown keys and invalid values raise `VnlError` before anything is compiled.

@@ -75,7 +75,8 @@ class Camera:
     Args:
       mj_model: the compiled model (the same one the `mjx.Model` was made from).
       camera: a camera name (or index) of the model.
-      width, height: image size in pixels.
+      width: image width in pixels.
+      height: image height in pixels.
       skip_unsupported: leave visible meshes out of the image instead of failing.
       groups: geom groups to show (default: MuJoCo's default visible groups 0, 1, 2).
     """
