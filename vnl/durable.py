@@ -5,6 +5,11 @@ data and the directory entry are on disk: `write_atomic` writes a uniquely named
 in the target's directory (created exclusively, so two writers never share one), fsyncs it,
 renames it over the target and fsyncs the directory. `replace` and `rename` are `os.replace` /
 `os.rename` followed by an fsync of the directories involved. Imports nothing heavy.
+
+No write goes through a link: `write_atomic` puts its new file in place of a symbolic link at
+the target (the file the link pointed to is left as it was), and a file that is changed in
+place (metrics.jsonl, appended to) is first made a file of its own (`own_file`): a copy made of
+links (`cp -as`, DVC, git-annex) never changes its original.
 """
 
 from __future__ import annotations
@@ -13,6 +18,8 @@ import contextlib
 import errno
 import os
 import secrets
+import shutil
+import stat
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -80,13 +87,12 @@ def temporary_name(path: str | Path) -> Path:
 
 def write_atomic(path: str | Path, data: bytes | str | None = None, writer: Writer | None = None) -> Path:
     """Writes `data` (or whatever `writer(tmp)` writes) to `path` so that `path` holds either
-    its old content or the whole new one, also after a crash. A symlink at `path` is followed
-    (its target is replaced). Returns `path`."""
+    its old content or the whole new one, also after a crash. A symbolic link at `path` is
+    replaced by the new file, never followed (what it points to is left as it was). Returns
+    `path`."""
     if (data is None) == (writer is None):
         raise TypeError("write_atomic takes data or a writer, not both")
     path = Path(path)
-    if path.is_symlink():
-        path = Path(os.path.realpath(path))
     tmp = temporary_name(path)
     try:
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o644)
@@ -106,6 +112,41 @@ def write_atomic(path: str | Path, data: bytes | str | None = None, writer: Writ
             os.unlink(tmp)
         raise
     return path
+
+
+def is_linked(path: str | Path) -> bool:
+    """Whether changing the file at `path` in place would change a file elsewhere too: `path` is
+    a symbolic link, or a regular file with other hard links."""
+    try:
+        st = os.lstat(path)
+    except FileNotFoundError:
+        return False
+    return stat.S_ISLNK(st.st_mode) or (stat.S_ISREG(st.st_mode) and st.st_nlink > 1)
+
+
+def own_file(path: str | Path) -> bool:
+    """Makes `path` a file of its own before it is changed in place (appended to): a symbolic
+    link or a hard-linked file is replaced, atomically, by a copy of what it holds (a link to
+    nothing by an empty file); the file it shared is left as it was. Returns whether it did."""
+    if not is_linked(path):
+        return False
+
+    def copy(tmp: Path) -> None:
+        with contextlib.suppress(FileNotFoundError):  # a link to nothing: an empty file
+            shutil.copyfile(path, tmp)
+
+    write_atomic(path, writer=copy)
+    return True
+
+
+def remove_tree(path: str | Path) -> None:
+    """Removes the directory tree at `path`, or the link at `path` (never what a link points
+    to: `shutil.rmtree` refuses a link, and its `ignore_errors` would leave it in place)."""
+    if os.path.islink(path):
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(path)
+    else:
+        shutil.rmtree(path, ignore_errors=True)
 
 
 def unique_path(directory: str | Path, prefix: str, suffix: str = "", make_dir: bool = False) -> Path:

@@ -22,6 +22,10 @@ process left. Durability: every file of the temporary directory is fsynced befor
 and every rename is followed by an fsync of the directory (`vnl.durable`), so a power cut never
 leaves a step name pointing at data still in the page cache.
 
+Links are never written through: a step directory that is a link (a copied run's) is removed as
+a link, its target left alone, and a `checkpoints` folder that is a link is refused
+(`layout.check_own_dirs`).
+
 Parameters that are not finite (a diverged run) are never written (`save` refuses them) and a
 checkpoint holding them is not loaded. Loading skips (with a warning) a checkpoint that is
 corrupt — unreadable files, non-finite parameters, a meta.json that is not what `save` writes
@@ -44,6 +48,7 @@ import numpy as np
 
 from vnl import durable, safe_yaml
 from vnl.errors import VnlError
+from vnl.io import layout
 
 _STEP_DIR = re.compile(r"^\d{12}$")
 _REPLACED = re.compile(r"^\.replaced-(\d{12})$")
@@ -78,13 +83,14 @@ def tidy(run_dir: str | Path) -> None:
     root = checkpoint_dir(run_dir)
     if not root.is_dir():
         return
+    layout.check_own_dirs(run_dir, (layout.CHECKPOINTS,))
     for p in root.iterdir():
         if p.name.startswith((".tmp-", ".deleting-")):
-            shutil.rmtree(p, ignore_errors=True)
+            durable.remove_tree(p)
         elif m := _REPLACED.match(p.name):
             final = root / m.group(1)
             if final.is_dir():
-                shutil.rmtree(p, ignore_errors=True)
+                durable.remove_tree(p)
             else:
                 durable.rename(p, final)
 
@@ -94,7 +100,7 @@ def _remove(path: Path) -> None:
     checkpoint under a step name."""
     doomed = path.with_name(f".deleting-{path.name.removeprefix('.replaced-')}-{os.getpid()}")
     durable.rename(path, doomed)
-    shutil.rmtree(doomed, ignore_errors=True)
+    durable.remove_tree(doomed)
 
 
 def software_versions() -> dict[str, str]:
@@ -157,6 +163,7 @@ def save(
     if bad or not _finite_tree(params):
         raise ValueError(f"refusing to write checkpoint {step}: non-finite parameters ({', '.join(bad[:3])})")
     root = checkpoint_dir(run_dir)
+    layout.check_own_dirs(run_dir, (layout.CHECKPOINTS,))
     root.mkdir(parents=True, exist_ok=True)
     tidy(run_dir)
     final = root / f"{step:012d}"

@@ -56,6 +56,12 @@ def prepare_run_dir(run_dir: Path, config: TrainConfig) -> None:
         raise VnlError(f"cannot write to run directory {run_dir}: {e.strerror or e}") from None
 
 
+def written_dirs(config: TrainConfig) -> tuple[str, ...]:
+    """The folders of the run directory that a session of `config` writes files into."""
+    trackers = (("tensorboard",) if config.log.tensorboard else ()) + (("wandb",) if config.log.wandb else ())
+    return (layout.CHECKPOINTS, *trackers)
+
+
 def checkpoint_bytes(config: TrainConfig, env: Env) -> int:
     """Estimated size of one checkpoint, from shapes only (nothing is compiled).
 

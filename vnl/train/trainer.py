@@ -25,7 +25,7 @@ from typing import Any
 
 from vnl import typed_config as config_lib
 from vnl.errors import VnlError
-from vnl.io import checkpoint, runlock
+from vnl.io import checkpoint, layout, runlock
 from vnl.io import metrics as metrics_io
 from vnl.train import distributed, loop, rundir, warm_start
 from vnl.train.config import TrainConfig, read_config
@@ -96,6 +96,7 @@ def resume(
     run_dir = Path(run_dir)
     saved = read_config(run_dir)
     config = resume_config(saved, assignments, flags)
+    layout.check_own_dirs(run_dir, rundir.written_dirs(config))  # a linked folder: refused before any work
     loop.check_devices(config)
     seen = checkpoint.steps(run_dir)
     step, arrays, meta = checkpoint.load_train_state(run_dir, from_step, required=RESUME_META)

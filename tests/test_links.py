@@ -1,0 +1,176 @@
+"""Links, late checks, leftovers and API types (issue 53): the fast tests.
+
+A run copied with `cp -as` (or kept by DVC or git-annex) is a folder of links to another run's
+files; nothing vnl writes into it may change that other run. The copies here are made as `cp -as`
+makes them (real folders, every file a symbolic link to the original's, `_copy_as_links`), or
+with hard links, or with a folder that is itself a link. The generated fuzz of the CLI
+(tests/test_cli_fuzz.py) runs the same classes as subprocesses.
+"""
+
+import hashlib
+import os
+import stat
+from pathlib import Path
+
+import pytest
+from test_hardening import ARRAYS, PARAMS, _meta, _one_error, _run
+
+from vnl import durable
+from vnl import typed_config as config_lib
+from vnl.cli import checks
+from vnl.errors import VnlError
+from vnl.io import checkpoint, layout, runlock
+from vnl.io import metrics as metrics_io
+from vnl.train import rundir
+
+
+def _copy_as_links(src: Path, dst: Path) -> None:
+    """What `cp -as SRC DST` makes: the same folders, each file a symbolic link to the original."""
+    for dirpath, _, filenames in os.walk(src):
+        here = dst / Path(dirpath).relative_to(src)
+        here.mkdir(parents=True, exist_ok=True)
+        for name in filenames:
+            os.symlink(Path(dirpath, name).absolute(), here / name)
+
+
+def _snapshot(root: Path) -> dict[str, tuple]:
+    """Every entry under `root`: (kind, size, mode, mtime, inode, sha256 of a regular file)."""
+    out = {}
+    for p in sorted(root.rglob("*")):
+        st = p.lstat()
+        digest = hashlib.sha256(p.read_bytes()).hexdigest() if stat.S_ISREG(st.st_mode) else ""
+        out[str(p.relative_to(root))] = (stat.S_IFMT(st.st_mode), st.st_size, st.st_mode, st.st_mtime_ns, digest)
+    return out
+
+
+def _original(tmp_path: Path) -> Path:
+    """A run with checkpoints 0, 2, 4, their metrics and its lock file (written by its session)."""
+    run = _run(tmp_path, "orig")
+    for step in (2, 4):
+        checkpoint.save(run, step, PARAMS, 0, ARRAYS, _meta(step))
+    metrics_io.rewrite(run / layout.METRICS, [{"step": s, "eval/episode_reward": float(s)} for s in (0, 2, 4)])
+    with runlock.hold(run):
+        pass
+    return run
+
+
+def test_resuming_a_copy_made_of_links_never_changes_the_original(tmp_path):
+    """Each write a resume (and the end of its session) makes to the run directory, in order, on
+    a `cp -as` copy: the original keeps every byte, mode and mtime; the copy's files are its own."""
+    orig = _original(tmp_path)
+    copy = tmp_path / "copy"
+    _copy_as_links(orig, copy)
+    before = _snapshot(orig)
+    say = lambda line: None  # noqa: E731
+    checkpoint.tidy(copy)
+    with runlock.hold(copy):
+        values = config_lib.load_yaml(str(copy / layout.CONFIG))
+        config_lib.dump_yaml({**values, "ppo": {**values["ppo"], "num_timesteps": 99}}, str(copy / layout.CONFIG))
+        rundir.set_aside_later_checkpoints(copy, 2, say)
+        rundir.truncate_metrics(copy, 2, None, say)
+        writer = metrics_io.JsonlWriter(copy / layout.METRICS)
+        writer.write({"step": 4, "eval/episode_reward": 9.0})
+        writer.close()
+        checkpoint.save(copy, 2, PARAMS, 1, ARRAYS, _meta(2))  # replaces the linked step 2
+        checkpoint.save(copy, 4, PARAMS, 1, ARRAYS, _meta(4))  # rotates step 2 out
+        durable.write_atomic(copy / layout.LEARNING_CURVE, b"png")
+        durable.write_atomic(copy / layout.FINAL_VIDEO, b"mp4")
+        durable.write_atomic(copy / "eval.json", b"{}")
+    assert _snapshot(orig) == before
+    for name in (layout.CONFIG, layout.METRICS, layout.LOCK, layout.LEARNING_CURVE, layout.FINAL_VIDEO):
+        assert stat.S_ISREG((copy / name).lstat().st_mode), name
+    assert [r["step"] for r in metrics_io.read(copy / layout.METRICS)] == [0, 2, 4]
+    assert checkpoint.steps(copy) == [0, 4] and checkpoint.load_train_state(copy)[0] == 4
+    assert config_lib.load_yaml(str(copy / layout.CONFIG))["ppo"]["num_timesteps"] == 99
+
+
+@pytest.mark.parametrize("link", ["symbolic", "hard"])
+def test_metrics_appended_to_a_linked_file_go_to_a_copy_of_its_own(tmp_path, link):
+    shared = tmp_path / "shared.jsonl"
+    metrics_io.rewrite(shared, [{"step": 0}])
+    before = shared.read_bytes()
+    path = tmp_path / "run" / layout.METRICS
+    path.parent.mkdir()
+    (os.symlink if link == "symbolic" else os.link)(shared, path)
+    writer = metrics_io.JsonlWriter(path)
+    writer.write({"step": 1})
+    writer.close()
+    assert shared.read_bytes() == before and shared.stat().st_nlink == 1
+    assert stat.S_ISREG(path.lstat().st_mode) and [r["step"] for r in metrics_io.read(path)] == [0, 1]
+
+
+@pytest.mark.parametrize("link", ["symbolic", "hard", "dangling"])
+def test_a_lock_file_that_is_a_link_is_replaced_and_what_it_shared_is_left_alone(tmp_path, link):
+    """A linked `.vnl-lock` had its target truncated (the holder is written into the locked file)."""
+    orig, copy = tmp_path / "orig", tmp_path / "copy"
+    orig.mkdir(), copy.mkdir()
+    (orig / layout.LOCK).write_text('{"pid": 1, "host": "the original"}')
+    if link == "hard":
+        os.link(orig / layout.LOCK, copy / layout.LOCK)
+    else:
+        os.symlink(orig / (layout.LOCK if link == "symbolic" else "missing"), copy / layout.LOCK)
+    before = _snapshot(orig)
+    with runlock.hold(copy, command="vnl train --resume copy"):
+        assert runlock.holder(copy)["command"] == "vnl train --resume copy"
+        assert stat.S_ISREG((copy / layout.LOCK).lstat().st_mode) and (copy / layout.LOCK).lstat().st_nlink == 1
+    assert _snapshot(orig) == before and (orig / layout.LOCK).stat().st_nlink == 1
+
+
+def test_the_copy_of_a_running_run_is_a_run_of_its_own(tmp_path, capsys):
+    """Its lock file links to the original's, which the original's session holds: the copy is
+    not refused as "being written by" that session."""
+    orig = _original(tmp_path)
+    copy = tmp_path / "copy"
+    _copy_as_links(orig, copy)
+    with runlock.hold(orig, command="vnl train --resume orig"):
+        assert runlock.holder(copy) is None
+        with runlock.hold(copy):
+            assert runlock.holder(orig)["command"] == "vnl train --resume orig"
+
+
+def test_checkpoints_that_are_links_are_removed_as_links_and_a_linked_folder_is_refused(tmp_path, capsys):
+    orig = _original(tmp_path)
+    before = _snapshot(orig)
+    copy = tmp_path / "copy"
+    copy.mkdir()
+    (copy / layout.CONFIG).symlink_to(orig / layout.CONFIG)
+    (copy / layout.CHECKPOINTS).mkdir()
+    for step in (0, 2, 4):  # each step's folder a link (what `ln -s` of the step folders makes)
+        (copy / layout.CHECKPOINTS / f"{step:012d}").symlink_to(checkpoint.step_dir(orig, step))
+    (copy / layout.CHECKPOINTS / ".tmp-000000000006-99").symlink_to(checkpoint.step_dir(orig, 4))
+    checkpoint.save(copy, 4, PARAMS, 0, ARRAYS, _meta(4))  # replaces a linked step
+    checkpoint.save(copy, 6, PARAMS, 1, ARRAYS, _meta(6))  # rotates linked steps 2 and 4 out
+    assert checkpoint.steps(copy) == [0, 6]
+    assert sorted(p.name for p in (copy / layout.CHECKPOINTS).iterdir()) == ["000000000000", "000000000006"]
+    assert _snapshot(orig) == before
+    # a `checkpoints` folder that is itself a link: refused before anything is written through it
+    linked = tmp_path / "linked"
+    _copy_as_links(orig, linked)
+    os.rename(linked / layout.CHECKPOINTS, tmp_path / "aside")
+    (linked / layout.CHECKPOINTS).symlink_to(orig / layout.CHECKPOINTS)
+    _one_error(["train", "--resume", linked], capsys, "checkpoints is a symbolic link", "cp -as")
+    with pytest.raises(VnlError, match="symbolic link"):
+        checkpoint.save(linked, 6, PARAMS, 1, ARRAYS, _meta(6))
+    with pytest.raises(VnlError, match="symbolic link"):
+        checkpoint.tidy(linked)
+    assert _snapshot(orig) == before
+
+
+def test_outputs_given_as_links_are_refused_before_the_work_and_default_ones_replaced(tmp_path, capsys):
+    run = _run(tmp_path)
+    (tmp_path / "mine.json").write_text("keep")
+    (tmp_path / "link.json").symlink_to(tmp_path / "mine.json")
+    (tmp_path / "dangling.json").symlink_to(tmp_path / "nowhere" / "x.json")
+    (tmp_path / "dangling.mp4").symlink_to(tmp_path / "nowhere.mp4")
+    for argv, words in [
+        (["eval", run, "--out", tmp_path / "link.json"], ["symbolic link (to", "mine.json"]),
+        (["eval", run, "--out", tmp_path / "dangling.json"], ["symbolic link (to nothing"]),
+        (["render", run, "--out", tmp_path / "dangling.mp4"], ["symbolic link (to nothing"]),
+    ]:
+        _one_error(argv, capsys, *words)
+    assert (tmp_path / "mine.json").read_text() == "keep"
+    # a default output in a copy made of links: the new file replaces the link
+    (run / "eval.json").symlink_to(tmp_path / "mine.json")
+    checks.output(run / "eval.json", (".json",), given=False)
+    durable.write_atomic(run / "eval.json", "{}")
+    assert (tmp_path / "mine.json").read_text() == "keep" and (run / "eval.json").read_text() == "{}"
