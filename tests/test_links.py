@@ -21,6 +21,7 @@ from vnl.cli import checks
 from vnl.errors import VnlError
 from vnl.io import checkpoint, layout, runlock
 from vnl.io import metrics as metrics_io
+from vnl.train import config as train_config
 from vnl.train import rundir
 
 
@@ -162,10 +163,12 @@ def test_outputs_given_as_links_are_refused_before_the_work_and_default_ones_rep
     (tmp_path / "link.json").symlink_to(tmp_path / "mine.json")
     (tmp_path / "dangling.json").symlink_to(tmp_path / "nowhere" / "x.json")
     (tmp_path / "dangling.mp4").symlink_to(tmp_path / "nowhere.mp4")
+    (tmp_path / "dangling_dir").symlink_to(tmp_path / "nowhere")
     for argv, words in [
         (["eval", run, "--out", tmp_path / "link.json"], ["symbolic link (to", "mine.json"]),
         (["eval", run, "--out", tmp_path / "dangling.json"], ["symbolic link (to nothing"]),
         (["render", run, "--out", tmp_path / "dangling.mp4"], ["symbolic link (to nothing"]),
+        (["train", "ant_run", "--out", tmp_path / "dangling_dir"], ["symbolic link to nothing"]),
     ]:
         _one_error(argv, capsys, *words)
     assert (tmp_path / "mine.json").read_text() == "keep"
@@ -174,3 +177,48 @@ def test_outputs_given_as_links_are_refused_before_the_work_and_default_ones_rep
     checks.output(run / "eval.json", (".json",), given=False)
     durable.write_atomic(run / "eval.json", "{}")
     assert (tmp_path / "mine.json").read_text() == "keep" and (run / "eval.json").read_text() == "{}"
+
+
+def test_a_new_run_refused_or_failed_before_its_first_checkpoint_leaves_nothing_behind(tmp_path):
+    config = train_config.build("ant_run", "tiny")
+    out = tmp_path / "a" / "b" / "run"
+    with pytest.raises(VnlError, match="refused"), rundir.new_run(out, config):
+        assert (out / layout.CONFIG).is_file() and (out / layout.LOCK).is_file()
+        raise VnlError("refused")
+    assert list(tmp_path.iterdir()) == []  # the directories it created are gone too
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("x")
+    with pytest.raises(KeyboardInterrupt), rundir.new_run(mine, config):  # a second Ctrl-C while compiling
+        metrics_io.JsonlWriter(mine / layout.METRICS).close()
+        (mine / "tensorboard").mkdir()
+        raise KeyboardInterrupt
+    assert sorted(p.name for p in mine.iterdir()) == ["notes.txt"]
+    (mine / layout.CONFIG).write_text("# my notes\n")  # refused: the folder holds a user's config.yaml
+    with pytest.raises(VnlError, match="already holds a run"), rundir.new_run(mine, config):
+        pass
+    assert sorted(p.name for p in mine.iterdir()) == [layout.CONFIG, "notes.txt"]
+    kept = tmp_path / "kept"  # a run with a checkpoint can be resumed: it stays
+    with pytest.raises(RuntimeError), rundir.new_run(kept, config):
+        checkpoint.save(kept, 0, PARAMS, 0, ARRAYS, _meta(0))
+        raise RuntimeError
+    assert (kept / layout.CONFIG).is_file() and checkpoint.steps(kept) == [0]
+
+
+def test_a_train_refused_by_the_disk_estimate_leaves_nothing_in_out(tmp_path, point_envs):
+    """The real refusal: a 32 MB tmpfs is below the estimate's 64 MB margin. It came after
+    config.yaml and the lock were written, so the corrected command was refused as "already holds
+    a run"."""
+    from fsutil import tmpfs
+
+    from vnl.train import trainer
+
+    config = train_config.build("test_point", "tiny", {"env_config": {"impl": "c"}, "log": {"video": False}})
+    with tmpfs("32m") as root:
+        with pytest.raises(VnlError, match="not enough free disk space"):
+            trainer.train(config, root / "new" / "run", say=lambda line: None)
+        assert list(root.iterdir()) == []
+        (root / "mine").mkdir()
+        with pytest.raises(VnlError, match="not enough free disk space"):
+            trainer.train(config, root / "mine", say=lambda line: None)
+        assert list((root / "mine").iterdir()) == []

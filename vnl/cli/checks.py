@@ -128,6 +128,8 @@ def new_run_dir(path: str | Path, flag: str = "--out") -> None:
     """The directory of a new run: not a file, holding none of a run's files (a user's
     config.yaml included), and creatable."""
     p = Path(path)
+    if p.is_symlink() and not p.exists():
+        raise VnlError(f"{flag} {path} is a symbolic link to nothing ({os.readlink(p)}); give a directory for the run")
     if p.exists() and not p.is_dir():
         raise VnlError(f"{flag} {path} is a file; give a directory for the run")
     found = layout.run_files_in(p)

@@ -52,7 +52,8 @@ def train(
     run starts from that run's networks (`vnl.train.warm_start`); its layout is checked before
     anything is written. Each world (each curriculum stage's env) is built once (`Worlds`).
     Process 0 holds the run directory's lock (`runlock`) from before config.yaml is written to the
-    end; a directory another process writes is refused.
+    end; a directory another process writes is refused. A run refused or failed before its first
+    checkpoint leaves nothing behind (`rundir.new_run`).
     """
     run_dir = Path(run_dir)
     loop.check_devices(config)
@@ -63,10 +64,7 @@ def train(
         parent = warm_start.load_parent(config)
         parent = warm_start.check_layout(parent, worlds.env(0), config.env)  # the env the parent starts in
         config = warm_start.recorded(config, parent)
-    with contextlib.ExitStack() as lock:
-        distributed.on_lead(lambda: rundir.create_run_dir(run_dir))
-        distributed.on_lead(lambda: lock.enter_context(runlock.hold(run_dir)))
-        distributed.on_lead(lambda: rundir.prepare_run_dir(run_dir, config))
+    with rundir.new_run(run_dir, config):  # removed again if the run fails before its first checkpoint
         return Session(config, run_dir, None, say, worlds, parent=parent, progress=progress).run(finish)
 
 
