@@ -222,3 +222,98 @@ def test_a_train_refused_by_the_disk_estimate_leaves_nothing_in_out(tmp_path, po
         with pytest.raises(VnlError, match="not enough free disk space"):
             trainer.train(config, root / "mine", say=lambda line: None)
         assert list((root / "mine").iterdir()) == []
+
+
+# --- temporary files of interrupted writes ------------------------------------------------------
+
+
+def _dead_pid() -> int:
+    """A pid no process has now."""
+    for pid in range(4_194_000, 4_194_304):
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return pid
+        except OSError:
+            continue
+    pytest.skip("no free pid found")
+
+
+def test_the_next_write_removes_the_temporary_files_of_killed_writes(tmp_path):
+    """A SIGKILL (or a power cut) mid-write leaves `.rec.tmp-<pid>-<host>-<random>.nwb`; the next
+    write of rec.nwb removes those of processes that no longer run, and only those."""
+    path = tmp_path / "rec.nwb"
+    dead, host = _dead_pid(), durable.temporary_name(path).name.split("-")[2]
+    stale = [f".rec.tmp-{dead}-{host}-0123abcd.nwb", f".rec.tmp-{dead}-89abcdef.nwb"]  # this vnl's, an older's
+    kept = [
+        f".rec.tmp-{os.getppid()}-{host}-0123abcd.nwb",  # a write in progress
+        f".rec.tmp-{dead}-{'0000' if host != '0000' else '1111'}-0123abcd.nwb",  # another host's (NFS)
+        f".rec.tmp-{dead}-{host}-0123abcd.nc",  # another file's
+        f".other.tmp-{dead}-{host}-0123abcd.nwb",
+    ]
+    for name in stale + kept:
+        (tmp_path / name).write_bytes(b"half")
+    durable.write_atomic(path, b"new")
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([*kept, "rec.nwb"])
+
+
+def test_sigterm_during_a_write_removes_its_temporary_file(tmp_path):
+    """SIGTERM's default action ended the process inside the write and left the temporary file
+    (an NWB export's hidden `.rec.tmp-*.nwb`); during a write it raises `durable.Terminated`, the
+    file is removed and the process exits with 143."""
+    import signal
+    import time
+
+    path = tmp_path / "rec.nwb"
+    path.write_bytes(b"old")
+
+    def writer(tmp: Path) -> None:
+        tmp.write_bytes(b"half")
+        assert signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL  # (else the signal would end pytest)
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(5)  # the handler runs here
+        raise AssertionError("SIGTERM did not interrupt the write")
+
+    with pytest.raises(durable.Terminated) as caught:
+        durable.write_atomic(path, writer=writer)
+    assert caught.value.code == 143 and signal.getsignal(signal.SIGTERM) is signal.SIG_DFL
+    assert path.read_bytes() == b"old" and [p.name for p in tmp_path.iterdir()] == ["rec.nwb"]
+
+
+def test_a_sigterm_during_a_command_s_write_is_one_line_and_exit_143(monkeypatch, capsys):
+    from vnl import cli
+    from vnl.cli import cmd_list
+
+    def terminated(args):
+        raise durable.Terminated()
+
+    monkeypatch.setattr(cmd_list, "run", terminated)
+    assert cli.main(["list"]) == 143
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("vnl: terminated (SIGTERM)")
+
+
+@pytest.mark.slow
+def test_a_sigterm_from_outside_during_a_write_leaves_no_temporary_file(tmp_path):
+    """The real signal, sent by another process (a job scheduler's, `timeout`'s) mid-write."""
+    import signal
+    import subprocess
+    import sys
+
+    script = (
+        "import sys, time\nfrom pathlib import Path\nfrom vnl import durable\n"
+        "def writer(tmp):\n    Path(tmp).write_bytes(b'half')\n    print('writing', flush=True)\n    time.sleep(60)\n"
+        "durable.write_atomic(sys.argv[1], writer=writer)\n"
+    )
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    proc = subprocess.Popen(
+        [sys.executable, "-c", script, str(tmp_path / "rec.nwb")], stdout=subprocess.PIPE, text=True, env=env
+    )
+    try:
+        assert proc.stdout.readline() == "writing\n"
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=30) == 143
+    finally:
+        proc.kill()
+        proc.stdout.close()
+    assert list(tmp_path.iterdir()) == []
