@@ -35,12 +35,16 @@ permission problem) is not corruption: it stops with a `VnlError` and nothing is
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import errno
 import json
+import logging
 import os
 import re
 import shutil
 import warnings
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -304,10 +308,56 @@ def _first_readable(run_dir: str | Path, step: int | None, read: Any, what: str)
                     f"could not read checkpoint {path} ({type(e).__name__}: {e.strerror or e}); this is a storage "
                     "error, not a corrupt checkpoint, so nothing was changed: check the file system and try again"
                 ) from None
-            errors.append(f"step {s}: {type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}")
+            first = str(e).splitlines()[0] if str(e) else ""
+            first = first if len(first) <= 240 else f"{first[:240]}..."  # tensorstore's run to kilobytes
+            errors.append(f"step {s}: {type(e).__name__}: {first}")
             if step is None:
                 warnings.warn(f"checkpoint {path} is unreadable ({errors[-1]}); trying an older one", stacklevel=3)
     raise VnlError(f"no readable {what} in {checkpoint_dir(run_dir)} ({'; '.join(errors)})")
+
+
+class _DrainingLoop(asyncio.SelectorEventLoop):
+    """An event loop that lets its pending tasks finish before it closes."""
+
+    def close(self) -> None:
+        if not self.is_running() and not self.is_closed():
+            pending = [t for t in asyncio.all_tasks(self) if not t.done()]
+            if pending:
+                self.run_until_complete(asyncio.gather(*pending, return_exceptions=True))
+        super().close()
+
+
+class _DrainingPolicy(asyncio.DefaultEventLoopPolicy):
+    def new_event_loop(self) -> asyncio.AbstractEventLoop:
+        return _DrainingLoop()
+
+
+@contextlib.contextmanager
+def _quiet_failed_read() -> Iterator[None]:
+    """A read of orbax's that fails prints nothing of its own: the caller reports the failure.
+
+    orbax runs a restore in a new event loop and closes it when the first read fails (a truncated
+    checkpoint), while tensorstore still finishes the other reads and calls `call_soon_threadsafe`
+    on the closed loop: one "RuntimeError: Event loop is closed" traceback each on stderr
+    (docs/developers/upstream.md#orbax-and-tensorstore). The loops made in the block finish their pending tasks
+    before closing. orbax's own log records (absl) are kept back and dropped if the read fails."""
+    held: list[logging.LogRecord] = []
+
+    def keep(record: logging.LogRecord) -> bool:
+        held.append(record)
+        return False
+
+    absl = logging.getLogger("absl")
+    policy = asyncio.get_event_loop_policy()
+    asyncio.set_event_loop_policy(_DrainingPolicy())
+    absl.addFilter(keep)
+    try:
+        yield
+    finally:
+        absl.removeFilter(keep)
+        asyncio.set_event_loop_policy(policy)
+    for record in held:  # the read succeeded: its log records as they were
+        absl.handle(record)
 
 
 def _read_params(path: Path, step: int) -> Any:
@@ -315,7 +365,8 @@ def _read_params(path: Path, step: int) -> Any:
 
     # Runs written before train_state existed kept the params at the top of the step directory.
     target = path / PARAMS if (path / PARAMS).is_dir() else path
-    params = brax_checkpoint.load(target.absolute())
+    with _quiet_failed_read():
+        params = brax_checkpoint.load(target.absolute())
     if not _finite_tree(params):
         raise ValueError("its parameters are not finite (a diverged run)")
     return params
