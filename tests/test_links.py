@@ -10,8 +10,10 @@ with hard links, or with a folder that is itself a link. The generated fuzz of t
 import hashlib
 import os
 import stat
+import warnings
 from pathlib import Path
 
+import numpy as np
 import pytest
 from test_hardening import ARRAYS, PARAMS, _meta, _one_error, _run
 
@@ -363,3 +365,50 @@ def test_a_truncated_newest_checkpoint_falls_back_without_tracebacks(tmp_path):
     lines = err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("warning: checkpoint") and "unreadable" in lines[0], err[-3000:]
     assert len(lines[0]) < 600  # tensorstore's spec (kilobytes) is cut
+
+
+# --- the Python API's arguments -------------------------------------------------------------------
+
+
+def test_load_policy_takes_integer_steps_best_and_latest_and_names_them_for_anything_else(tmp_path):
+    """`step=4096.0` ended in "ValueError: Unknown format code 'd'"; `step="4096"` and `"best"`
+    were looked up as keys and refused with a list of steps holding the one asked for."""
+    import vnl
+    from vnl.policy import checkpoint_step
+
+    run = _run(tmp_path)
+    checkpoint.save(run, 4096, PARAMS, 0, ARRAYS, _meta(4096))
+    for bad in (4096.0, "4096", True, np.bool_(False), -1, "newest", [4096], np.float32(4096)):
+        with pytest.raises(VnlError, match=r"step must be a checkpoint step .*'best'.*'latest'"):
+            vnl.load_policy(run, step=bad)
+    assert checkpoint_step(run, 4096) == 4096 and checkpoint_step(run, np.int64(4096)) == 4096
+    assert checkpoint_step(run, "latest") is None and checkpoint_step(run, None) is None
+    assert checkpoint_step(run, "best") == 4096  # the highest eval/episode_reward
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # the toy parameters are unreadable: "trying an older one"
+        for good in (np.int32(4096), "best", "latest"):  # accepted, then the parameters are read
+            with pytest.raises(VnlError, match="no readable checkpoint"):
+                vnl.load_policy(run, step=good)
+    with pytest.raises(VnlError, match=r"no checkpoint at step 7 in .*; available steps: 0, 4096$"):
+        vnl.load_policy(run, step=7)
+    with pytest.raises(VnlError, match="step must be"):
+        checkpoint.load_train_state(run, 4096.0)  # the library below the API too
+
+
+@pytest.mark.parametrize(
+    "call, words",
+    [
+        (lambda vnl, run: vnl.make(["ant_run"]), "name is a string"),
+        (lambda vnl, run: vnl.make(None), "name is a string"),
+        (lambda vnl, run: vnl.load_policy(None), "run_dir must be the path"),
+        (lambda vnl, run: vnl.load_policy(run, deterministic="no"), "deterministic must be True or False"),
+        (lambda vnl, run: vnl.policy.load_run(run, env_set="env_config.incline=5"), "env_set must be a list"),
+        (lambda vnl, run: vnl.policy.load_run(run, env_set=[3]), "env_set must be a list"),
+        (lambda vnl, run: vnl.policy.load_run(run, env=object()), "env must be a vnl Env"),
+    ],
+)
+def test_the_api_s_other_arguments_are_checked(tmp_path, call, words):
+    import vnl
+
+    with pytest.raises(VnlError, match=words):
+        call(vnl, _run(tmp_path))

@@ -275,7 +275,22 @@ def best(run_dir: str | Path, metric: str = "eval/episode_reward") -> tuple[int,
     return -step, value
 
 
+def check_step(step: Any) -> int | None:
+    """`step` as a checkpoint step: None, or an integer >= 0 (a Python int or an integral numpy
+    integer; not a bool, a float or a string, which would be looked up as another key or
+    formatted wrongly); else a `VnlError` naming what is accepted."""
+    if step is None:
+        return None
+    if isinstance(step, (bool, np.bool_)) or not isinstance(step, (int, np.integer)) or step < 0:
+        raise VnlError(
+            f"step must be a checkpoint step, an integer >= 0 (or None: the newest readable), got {step!r} "
+            f"({type(step).__name__})"
+        )
+    return int(step)
+
+
 def _candidates(run_dir: str | Path, step: int | None) -> list[int]:
+    step = check_step(step)
     available = steps(run_dir)
     if not available:
         raise VnlError(f"no checkpoint in {checkpoint_dir(run_dir)}; train first with `vnl train ENV --out {run_dir}`")
