@@ -412,3 +412,44 @@ def test_the_api_s_other_arguments_are_checked(tmp_path, call, words):
 
     with pytest.raises(VnlError, match=words):
         call(vnl, _run(tmp_path))
+
+
+# --- size-like config keys are bounded ------------------------------------------------------------
+
+BIG_STAGES = "curriculum=[" + ", ".join(["{steps: 1}"] * 1001) + "]"
+
+
+@pytest.mark.parametrize(
+    "env, assignment, words",
+    [
+        ("ant_run", "network.core_size=100000000", ["core_size", "65,536", "smaller recurrent core"]),
+        ("ant_run", "network.policy_hidden_layer_sizes=[70000]", ["policy_hidden_layer_sizes", "65,536", "smaller"]),
+        ("ant_run", "network.cnn_channels=[10000, 64, 64]", ["cnn_channels", "4,096", "smaller"]),
+        ("ant_run", "network.cnn_kernel_sizes=[1000, 4, 3]", ["cnn_kernel_sizes", "512", "smaller"]),
+        ("ant_run", "ppo.num_minibatches=100000000", ["num_minibatches", "65,536", "fewer minibatches"]),
+        ("ant_run", "ppo.unroll_length=1000000", ["unroll_length", "10,000", "shorter unrolls"]),
+        ("ant_run", "ppo.num_updates_per_batch=1000000", ["num_updates_per_batch", "10,000", "fewer"]),
+        ("ant_run", "ppo.action_repeat=100000", ["action_repeat", "1,000", "fewer times"]),
+        ("ant_run", "ppo.num_evals=10000000", ["num_evals", "100,000", "less often"]),
+        ("ant_run", f"ppo.num_timesteps={2**62 + 1}", ["num_timesteps", "4,611,686,018,427,387,904"]),
+        (
+            "ant_run",
+            "ppo={batch_size: 1048576, num_minibatches: 256, unroll_length: 10}",
+            ["batch_size × num_minibatches × unroll_length", "2,147,483,648", "make one of them smaller"],
+        ),
+        ("find_target", "vision.chunk=100000000", ["chunk", "65,536", "smaller chunk"]),
+        ("ant_run", "log.video_width=10000", ["video_width", "4,096", "10,000"]),
+        ("cue_memory", "env_config.episode_length=100000000", ["episode_length", "10,000,000"]),
+        ("ant_run_gaps", "env_config.ground_scan=[" + ", ".join(["0.1"] * 2000) + "]", ["ground_scan", "1,024"]),
+        ("ant_escape_bowl", "env_config.terrain_scan=[" + ", ".join(["[0, 0]"] * 2000) + "]", ["terrain_scan"]),
+        ("ant_run_gaps", "env_config.corridor.max_geom_pairs=10000000", ["max_geom_pairs", "100,000"]),
+        ("ant_run", BIG_STAGES, ["curriculum", "1,000 (each builds its own world)", "merge stages"]),
+    ],
+    ids=lambda v: v if len(str(v)) < 40 else str(v)[:40],
+)
+def test_size_like_config_keys_are_bounded_with_the_key_the_bound_and_the_fix(env, assignment, words, capsys):
+    """A huge `network.core_size` was caught only by the disk estimate, after the env was built;
+    the others not at all (or by the memory running out). Checked by `--print-config`: before
+    anything is built."""
+    line = _one_error(["train", env, "--preset", "tiny", "--print-config", "--set", assignment], capsys, *words)
+    assert "; " in line.split("vnl: error: ", 1)[1], line  # the fix, after the problem

@@ -87,6 +87,11 @@ class CueMemoryConfig:
     def validate(self) -> None:
         if self.episode_length < 1 or self.n_substeps < 1 or self.cue_steps < 1:
             raise VnlError("episode_length, n_substeps and cue_steps must be >= 1")
+        if self.episode_length > 10**7 or self.n_substeps > 10**4:
+            raise VnlError(
+                f"episode_length must be at most 10,000,000 control steps and n_substeps at most 10,000, got "
+                f"{self.episode_length:,} and {self.n_substeps:,}; shorten the episode or the physics step's split"
+            )
         if not self.cue_steps <= self.go_step < self.episode_length:
             raise VnlError(
                 f"need cue_steps <= go_step < episode_length, got {self.cue_steps}, {self.go_step} and "
