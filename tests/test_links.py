@@ -453,3 +453,19 @@ def test_size_like_config_keys_are_bounded_with_the_key_the_bound_and_the_fix(en
     anything is built."""
     line = _one_error(["train", env, "--preset", "tiny", "--print-config", "--set", assignment], capsys, *words)
     assert "; " in line.split("vnl: error: ", 1)[1], line  # the fix, after the problem
+
+
+def test_the_nwb_export_checks_its_output_before_building_the_file(tmp_path):
+    """`vnl.neuro.nwb.write` built the whole NWB file in memory before its write failed on a
+    missing folder or a directory in the way; now nothing of the recording is read first."""
+    pytest.importorskip("pynwb")
+    from vnl.neuro import nwb
+
+    (tmp_path / "a_dir.nwb").mkdir()
+    for path, words in [
+        (tmp_path / "missing" / "rec.nwb", "does not exist"),
+        (tmp_path / "a_dir.nwb", "is a directory"),
+        (tmp_path / "rec.nwb" / "x.nwb", "does not exist"),
+    ]:
+        with pytest.raises(VnlError, match=words):
+            nwb.write(None, path)  # the recording is not looked at
