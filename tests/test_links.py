@@ -469,3 +469,22 @@ def test_the_nwb_export_checks_its_output_before_building_the_file(tmp_path):
     ]:
         with pytest.raises(VnlError, match=words):
             nwb.write(None, path)  # the recording is not looked at
+
+
+@pytest.mark.slow
+def test_a_resume_refused_for_a_checkpoint_of_another_setup_writes_nothing(tmp_path, point_envs):
+    """The training state was checked against the env only after the lock was taken, the later
+    checkpoints set aside and metrics.jsonl cut back (found by the fuzz of a copy made of links)."""
+    from vnl.train import trainer
+
+    run = tmp_path / "run"
+    run.mkdir()
+    config = train_config.build("test_point", "tiny", {"env_config": {"impl": "c"}, "log": {"video": False}})
+    config_lib.dump_yaml(train_config.resolved(config), str(run / layout.CONFIG))
+    metrics_io.rewrite(run / layout.METRICS, [{"step": 0}, {"step": 10}])
+    checkpoint.save(run, 0, PARAMS, 0, ARRAYS, _meta(0))  # arrays of another setup
+    checkpoint.save(run, 10, PARAMS, 0, ARRAYS, _meta(10))
+    before = _snapshot(run)
+    with pytest.raises(VnlError, match="does not match this env and config"):
+        trainer.resume(run, 0, say=lambda line: None)
+    assert _snapshot(run) == before

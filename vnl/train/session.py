@@ -99,6 +99,14 @@ class Session:
         self.evaluations = 0  # evaluations since the start (or the restored checkpoint)
         self.tracker: tracking.Tracker | None = None
         self.t_start = time.time()
+        self._restored_state: LoopState | None = None
+
+    def check_restored(self) -> None:
+        """The state of the checkpoint a resumed run continues from, built from its arrays: a
+        checkpoint of another setup (env, network, ppo.num_envs) is a `VnlError` here, before
+        anything of the run directory is written or locked."""
+        if self.restored is not None and self._restored_state is None:
+            self._restored_state = self.loop.from_arrays(self.restored.arrays)
 
     # ---- the run ---------------------------------------------------------------------------------
 
@@ -108,8 +116,9 @@ class Session:
         uploaded to wandb. Process 0 then draws learning_curve.png and says the run's summary."""
         try:
             with self.stop.installed():
+                self.check_restored()
                 distributed.on_lead(self._open_run_dir)
-                interrupted, state = self._train()
+                interrupted, state = self._train(self._restored_state)
             saved = checkpoint.steps(self.run_dir) if self.lead else [self.loop.env_steps(state)]
             result = TrainResult(
                 run_dir=self.run_dir,
@@ -205,10 +214,11 @@ class Session:
             durable.write_atomic(self.run_dir / layout.RANDOMIZATION, json.dumps(loop.randomization, indent=2) + "\n")
         self.say("[vnl] compiling (on a CPU about a minute; seconds with a warm compilation cache)...")
 
-    def _train(self) -> tuple[bool, LoopState]:
-        """The epochs; returns (interrupted, final state)."""
+    def _train(self, restored: LoopState | None) -> tuple[bool, LoopState]:
+        """The epochs from `restored` (the checkpoint's state) or a new state; returns
+        (interrupted, final state)."""
         total = self.config.ppo.num_timesteps
-        state = self._first_state()
+        state = self._first_state(restored)
         self.say(f"[vnl] compiled and ready {time.time() - self.t_start:.0f} s after start; training")
         step = self.loop.env_steps(state)
         # With several processes a stop is agreed on (any process's signal stops all of them at
@@ -227,10 +237,10 @@ class Session:
             self._log(record)
         return step < total, state
 
-    def _first_state(self) -> LoopState:
+    def _first_state(self, restored: LoopState | None) -> LoopState:
         """The restored state, or a fresh one evaluated and checkpointed at step 0; compiled."""
-        if self.restored:
-            state = self.loop.from_arrays(self.restored.arrays)
+        if restored is not None:
+            state = restored
             self.loop.compile(state)
             self.evaluations = 1  # checkpoint_every counts evaluations after the restored one
             return state

@@ -103,14 +103,15 @@ def resume(
     worlds = Worlds(config, say if distributed.is_lead() else None)
     _check_video_camera(config, worlds)
     _warn_versions(meta, step)
+    session = Session(config, run_dir, Restored(step, arrays, meta), say, worlds, progress=progress)
+    session.check_restored()  # a checkpoint of another setup: refused before the lock is taken
     with contextlib.ExitStack() as lock:  # taken after the checks above: a refused resume writes nothing
         distributed.on_lead(lambda: lock.enter_context(runlock.hold(run_dir)))
         distributed.on_lead(lambda: _check_unchanged(run_dir, seen))
         if config != saved:
             distributed.on_lead(lambda: config_lib.dump_yaml(config, str(run_dir / "config.yaml")))
         _say_schedule(config, say)
-        restored = Restored(step, arrays, meta)
-        return Session(config, run_dir, restored, say, worlds, progress=progress).run(finish)
+        return session.run(finish)
 
 
 RESUME_META = ("training_steps_per_epoch",)
