@@ -488,3 +488,28 @@ def test_a_resume_refused_for_a_checkpoint_of_another_setup_writes_nothing(tmp_p
     with pytest.raises(VnlError, match="does not match this env and config"):
         trainer.resume(run, 0, say=lambda line: None)
     assert _snapshot(run) == before
+
+
+@pytest.mark.slow
+def test_a_real_resume_of_a_cp_as_copy_finishes_and_leaves_the_original_as_it_was(tmp_path, point_envs, capsys):
+    """`vnl train --resume COPY` of a run copied with `cp -as`: it continues (config.yaml
+    rewritten for the new length, metrics appended, checkpoints rotated, the learning curve
+    redrawn) and its original keeps every byte, mode and mtime."""
+    import subprocess
+
+    from vnl import cli
+
+    orig, copy = tmp_path / "orig", tmp_path / "copy"
+    train = ["train", "test_point", "--preset", "tiny", "--set", "env_config.impl=c", "--no-video"]
+    sets = ["--set", "ppo.num_evals=3", "--set", "log.keep_checkpoints=1"]
+    assert cli.main([*train, *sets, "--steps", "2048", "--out", str(orig)]) == 0
+    subprocess.run(["cp", "-as", str(orig), str(copy)], check=True)
+    before = _snapshot(orig)
+    assert cli.main(["train", "--resume", str(copy), "--steps", "4096"]) == 0
+    assert _snapshot(orig) == before
+    steps = [r["step"] for r in metrics_io.read(copy / layout.METRICS)]
+    assert steps[-1] == 4096 and steps == sorted(set(steps))
+    assert config_lib.load_yaml(str(copy / layout.CONFIG))["ppo"]["num_timesteps"] == 4096
+    for name in (layout.CONFIG, layout.METRICS, layout.LOCK, layout.LEARNING_CURVE):
+        assert stat.S_ISREG((copy / name).lstat().st_mode), name
+    capsys.readouterr()
