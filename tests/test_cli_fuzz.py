@@ -419,6 +419,53 @@ def generated_cases(ro: Path) -> list[Case]:
     return cases
 
 
+def link_and_odd_input_cases() -> list[Case]:
+    """Issue 53: links (a copy made of links, a linked lock and checkpoints folder, outputs that
+    are links) and odd paths (`.`, `..`, an empty name, a file where a folder goes). Each is
+    refused with its reason and changes nothing: neither the copy nor what its links point to."""
+    train = ["train", "ant_run", "--preset", "tiny"]
+    cases = [
+        Case("links", argv, expect, light=light)
+        for argv, expect, light in (
+            (["eval", "run", "--out", "link.json"], "symbolic link (to", True),
+            (["eval", "run", "--out", "dangling.json"], "symbolic link (to nothing", True),
+            (["render", "run", "--out", "link.mp4"], "symbolic link (to", True),
+            (["render", "run", "--out", "dangling.mp4"], "symbolic link (to nothing", True),
+            ([*train, "--out", "dangling_dir"], "symbolic link to nothing", True),
+            ([*train, "--out", "run_links"], "already holds a run", True),
+            (["train", "--resume", "run_linked_ckpts"], "checkpoints is a symbolic link", True),
+            (["train", "--resume", "run_links", "--from-step", "5"], "no checkpoint at step 5", False),
+            (["train", "--resume", "run_links", "--set", "ppo.learning_rate=1.0"], "learning_rate", False),
+            (["train", "--resume", "run_links"], "does not match this env and config", False),
+            (["eval", "run_links", "--step", "5"], "no checkpoint at step 5", False),
+            (["eval", "run_links", "--out", "link.json"], "symbolic link (to", True),
+        )
+    ]
+    cases += [
+        Case("odd inputs", argv, expect)
+        for argv, expect in (
+            (["eval", "."], "not a vnl run directory"),
+            (["eval", ""], "not a vnl run directory"),
+            (["render", "."], "not a vnl run directory"),
+            (["train", "--resume", "."], "not a vnl run directory"),
+            (["train", "--resume", "run/checkpoints"], "not a vnl run directory"),
+            ([*train, "--init-from", "."], "not a vnl run directory"),
+            ([*train, "--config", "."], "is a directory"),
+            ([*train, "--config", ".."], "is a directory"),
+            ([*train, "--config", "run/checkpoints"], "is a directory"),
+            (["eval", "run", "--out", "."], "is a directory"),
+            (["eval", "run", "--out", "run/."], "is a directory"),
+            (["render", "run", "--out", ".."], "is a directory"),
+            (["eval", "run", "--out", ".json"], "expected a .json"),
+            (["eval", "run", "--out", "run/config.yaml/x.json"], "is not a directory"),
+            (["eval", "run/config.yaml"], "is a file, not a run directory"),
+            (["eval", "-"], "run directory not found"),
+            ([*train, "--out", "afile.txt/run"], "is a file, not a directory"),
+        )
+    ]
+    return cases
+
+
 def _snapshot(root: Path) -> dict[str, tuple]:
     """Every entry under `root`: (kind, size, mode, mtime, sha256 of a regular file's bytes)."""
     out = {}
@@ -456,6 +503,29 @@ def _fuzz_fixtures(root: Path) -> None:
     (root / "dangling.yaml").symlink_to("nowhere.yaml")
     (root / "rec_copy.rrd").symlink_to("rec.nc")
     (root / "rec_copy.nwb").symlink_to("rec.nc")
+    _link_fixtures(root)
+
+
+def _link_fixtures(root: Path) -> None:
+    """Links (relative, so that each sandbox's point into itself): `run_links`, what `cp -as run`
+    makes (every file a link) with a lock file linked to `held.lock`; `run_linked_ckpts`, whose
+    checkpoints folder is a link to run's; outputs that are links, to a file and to nothing."""
+    for dirpath, _, filenames in os.walk(root / "run"):
+        here = root / "run_links" / Path(dirpath).relative_to(root / "run")
+        here.mkdir(parents=True, exist_ok=True)
+        for name in filenames:
+            (here / name).symlink_to(os.path.relpath(Path(dirpath, name), here))
+    (root / "held.lock").write_text('{"pid": 1, "host": "the original run"}')
+    (root / "run_links" / ".vnl-lock").symlink_to("../held.lock")
+    (root / "run_linked_ckpts").mkdir()
+    (root / "run_linked_ckpts" / "config.yaml").write_text((root / "run" / "config.yaml").read_text())
+    (root / "run_linked_ckpts" / "checkpoints").symlink_to("../run/checkpoints")
+    (root / "mine.json").write_text("{}")
+    (root / "link.json").symlink_to("mine.json")
+    (root / "link.mp4").symlink_to("mine.json")
+    (root / "dangling.json").symlink_to("nowhere/x.json")
+    (root / "dangling.mp4").symlink_to("nowhere.mp4")
+    (root / "dangling_dir").symlink_to("nowhere_dir")
 
 
 FIFOS = ("fifo.yaml", "fifo.json", "run_fifo_config/config.yaml", "run_fifo_metrics/metrics.jsonl")
@@ -673,3 +743,9 @@ def test_generated_fuzz_of_recording_inputs_and_outputs(tmp_path):
         return recording_cases(ro)
 
     _run_all(tmp_path, make_cases, 100)
+
+
+def test_generated_fuzz_of_links_and_odd_inputs(tmp_path):
+    """Issue 53: outputs that are links (to a file, to nothing), a copy made of links with a
+    linked lock, a linked checkpoints folder, `.`, `..` and other odd paths."""
+    _run_all(tmp_path, lambda ro: link_and_odd_input_cases(), 25)

@@ -192,12 +192,19 @@ def test_a_fifo_as_config_is_refused_without_blocking(tmp_path, capsys):
         (["view", "{tmp}/rec.nc", "--out", "{tmp}/x.nc"], [".rrd"]),
         (["compare", "{run}", "{run}", "--out", "{tmp}/x.json"], [".png"]),
         (["eval", "{run}", "--out", "{tmp}/fifo.json"], ["not a regular file"]),
+        (["eval", "{run}", "--out", "{tmp}/link.json"], ["symbolic link (to"]),  # issue 53: links, `.`
+        (["render", "{run}", "--out", "{tmp}/dangling.mp4"], ["symbolic link (to nothing"]),
+        (["train", "ant_run", "--out", "{tmp}/dangling"], ["symbolic link to nothing"]),
+        (["eval", "{run}", "--out", "."], ["is a directory"]),
     ],
 )
 def test_output_file_types_are_checked(tmp_path, capsys, argv, words):
     run = _run(tmp_path)
     (tmp_path / "rec.nc").write_bytes(b"x")
     os.mkfifo(tmp_path / "fifo.json")
+    (tmp_path / "link.json").symlink_to(tmp_path / "rec.nc")
+    (tmp_path / "dangling.mp4").symlink_to(tmp_path / "nowhere.mp4")
+    (tmp_path / "dangling").symlink_to(tmp_path / "nowhere")
     argv = [a.format(run=run, tmp=tmp_path) for a in argv]
     _one_error(argv, capsys, *words)
 

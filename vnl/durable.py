@@ -5,16 +5,33 @@ data and the directory entry are on disk: `write_atomic` writes a uniquely named
 in the target's directory (created exclusively, so two writers never share one), fsyncs it,
 renames it over the target and fsyncs the directory. `replace` and `rename` are `os.replace` /
 `os.rename` followed by an fsync of the directories involved. Imports nothing heavy.
+
+No write goes through a link: `write_atomic` puts its new file in place of a symbolic link at
+the target (the file the link pointed to is left as it was), and a file that is changed in
+place (metrics.jsonl, appended to) is first made a file of its own (`own_file`): a copy made of
+links (`cp -as`, DVC, git-annex) never changes its original.
+
+Temporary files of writes a process did not finish are removed: on SIGTERM during the write (it
+raises `Terminated` there, where SIGTERM would otherwise kill the process at once), and, after a
+SIGKILL or a power cut, by the next write of the same file (`remove_stale_temporaries`: the
+temporary names carry the writer's pid and host).
 """
 
 from __future__ import annotations
 
 import contextlib
 import errno
+import hashlib
 import os
+import re
 import secrets
+import shutil
+import signal
+import socket
+import stat
+import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 Writer = Callable[[Path], None]
@@ -71,41 +88,144 @@ def replace(src: str | Path, dst: str | Path) -> None:
         fsync_dir(parent)
 
 
+_HOST = hashlib.sha1(socket.gethostname().encode(), usedforsecurity=False).hexdigest()[:4]
+"""This host, in temporary names: a pid is looked up only on the host that wrote it (NFS)."""
+
+
 def temporary_name(path: str | Path) -> Path:
-    """A name beside `path` no other writer uses: `.<stem>.tmp-<pid>-<random><suffix>` (the
-    suffix kept, for writers that take the format from it)."""
-    path = Path(path)
-    return path.with_name(f".{path.stem}.tmp-{os.getpid()}-{secrets.token_hex(4)}{path.suffix}")
+    """A name beside `path` no other writer uses: `.<stem>.tmp-<pid>-<host>-<random><suffix>`
+    (the suffix kept, for writers that take the format from it)."""
+    path = Path(os.path.abspath(path))  # `.` has no name to derive one from
+    return path.with_name(f".{path.stem}.tmp-{os.getpid()}-{_HOST}-{secrets.token_hex(4)}{path.suffix}")
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:
+        return True  # another user's process
+    return True
+
+
+def remove_stale_temporaries(path: str | Path) -> list[Path]:
+    """Removes the temporary files `write_atomic` left beside `path` in processes that no longer
+    run (killed mid-write: SIGKILL, a power cut), written on this host; returns them. Temporary
+    files of writes in progress (a live pid, another host) are left alone."""
+    path = Path(os.path.abspath(path))
+    name = re.compile(
+        re.escape(f".{path.stem}.tmp-") + r"(\d+)-(?:([0-9a-f]{4})-)?[0-9a-f]{8}" + re.escape(path.suffix) + "$"
+    )
+    removed = []
+    try:
+        entries = list(os.scandir(path.parent))
+    except OSError:
+        return removed
+    for entry in entries:
+        m = name.match(entry.name)
+        if not m or (m[2] or _HOST) != _HOST or int(m[1]) == os.getpid() or _alive(int(m[1])):
+            continue
+        if not entry.is_dir(follow_symlinks=False):
+            with contextlib.suppress(OSError):
+                os.unlink(entry.path)
+                removed.append(Path(entry.path))
+    return removed
+
+
+class Terminated(SystemExit):
+    """SIGTERM during a write: raised there so that the write's temporary file is removed; the
+    process then exits with 143 (128 + SIGTERM), as it would have, when nothing catches it."""
+
+    def __init__(self) -> None:
+        super().__init__(128 + signal.SIGTERM)
+
+
+def _raise_terminated(signum: int, frame: object) -> None:
+    raise Terminated()
+
+
+@contextlib.contextmanager
+def terminable() -> Iterator[None]:
+    """In the block, SIGTERM raises `Terminated` instead of ending the process at once, so the
+    `finally`s of the writes in progress run. Only in the main thread (where Python runs signal
+    handlers) and only while SIGTERM has its default action: a handler of the program's own
+    (training's stop-at-the-next-evaluation) is left in place."""
+    if threading.current_thread() is not threading.main_thread() or signal.getsignal(signal.SIGTERM) != signal.SIG_DFL:
+        yield
+        return
+    signal.signal(signal.SIGTERM, _raise_terminated)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 def write_atomic(path: str | Path, data: bytes | str | None = None, writer: Writer | None = None) -> Path:
     """Writes `data` (or whatever `writer(tmp)` writes) to `path` so that `path` holds either
-    its old content or the whole new one, also after a crash. A symlink at `path` is followed
-    (its target is replaced). Returns `path`."""
+    its old content or the whole new one, also after a crash. A symbolic link at `path` is
+    replaced by the new file, never followed (what it points to is left as it was). The
+    temporary files of earlier writes of `path` that were killed are removed first. Returns
+    `path`."""
     if (data is None) == (writer is None):
         raise TypeError("write_atomic takes data or a writer, not both")
     path = Path(path)
-    if path.is_symlink():
-        path = Path(os.path.realpath(path))
+    remove_stale_temporaries(path)
     tmp = temporary_name(path)
-    try:
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o644)
-        if data is not None:
-            with os.fdopen(fd, "wb") as f:
-                f.write(data.encode() if isinstance(data, str) else data)
-                f.flush()
-                os.fsync(f.fileno())
-        else:
-            os.close(fd)
-            assert writer is not None
-            writer(tmp)
-            fsync_file(tmp)
-        replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
+    with terminable():
+        try:
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o644)
+            if data is not None:
+                with os.fdopen(fd, "wb") as f:
+                    f.write(data.encode() if isinstance(data, str) else data)
+                    f.flush()
+                    os.fsync(f.fileno())
+            else:
+                os.close(fd)
+                assert writer is not None
+                writer(tmp)
+                fsync_file(tmp)
+            replace(tmp, path)
+        except BaseException:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+            raise
     return path
+
+
+def is_linked(path: str | Path) -> bool:
+    """Whether changing the file at `path` in place would change a file elsewhere too: `path` is
+    a symbolic link, or a regular file with other hard links."""
+    try:
+        st = os.lstat(path)
+    except FileNotFoundError:
+        return False
+    return stat.S_ISLNK(st.st_mode) or (stat.S_ISREG(st.st_mode) and st.st_nlink > 1)
+
+
+def own_file(path: str | Path) -> bool:
+    """Makes `path` a file of its own before it is changed in place (appended to): a symbolic
+    link or a hard-linked file is replaced, atomically, by a copy of what it holds (a link to
+    nothing by an empty file); the file it shared is left as it was. Returns whether it did."""
+    if not is_linked(path):
+        return False
+
+    def copy(tmp: Path) -> None:
+        with contextlib.suppress(FileNotFoundError):  # a link to nothing: an empty file
+            shutil.copyfile(path, tmp)
+
+    write_atomic(path, writer=copy)
+    return True
+
+
+def remove_tree(path: str | Path) -> None:
+    """Removes the directory tree at `path`, or the link at `path` (never what a link points
+    to: `shutil.rmtree` refuses a link, and its `ignore_errors` would leave it in place)."""
+    if os.path.islink(path):
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(path)
+    else:
+        shutil.rmtree(path, ignore_errors=True)
 
 
 def unique_path(directory: str | Path, prefix: str, suffix: str = "", make_dir: bool = False) -> Path:

@@ -9,11 +9,13 @@ gives both kinds that second form, which is what rollouts, recordings and videos
 from __future__ import annotations
 
 import dataclasses
+import os
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import jax
+import numpy as np
 
 from vnl.errors import VnlError
 from vnl.io import checkpoint
@@ -96,17 +98,54 @@ def make_policy_fn(config: TrainConfig, env: Env, params: Any, deterministic: bo
     return policy
 
 
+Step = int | Literal["best", "latest"] | None
+"""A checkpoint: its step (an integer >= 0), `"best"` (`best_checkpoint`), `"latest"` or None
+(the newest readable one)."""
+
+
+def checkpoint_step(run_dir: str | Path, step: Step) -> int | None:
+    """The step `step` names in `run_dir` (None: the newest readable); a `VnlError` naming what is
+    accepted for anything else (a float, a bool, another string)."""
+    if isinstance(step, str):
+        if step in ("best", "latest"):
+            return best_checkpoint(run_dir)[0] if step == "best" else None
+        raise VnlError(f"step must be a checkpoint step (an integer >= 0), 'best' or 'latest', got {step!r}")
+    try:
+        return checkpoint.check_step(step)
+    except VnlError:
+        raise VnlError(
+            f"step must be a checkpoint step (an integer >= 0), 'best', 'latest' or None (the newest), got {step!r} "
+            f"({type(step).__name__})"
+        ) from None
+
+
+def _check_arguments(run_dir: Any, deterministic: Any, env_set: Any, env: Any) -> None:
+    """The types `load_run`'s arguments must have; a `VnlError` naming the argument otherwise."""
+    if not isinstance(run_dir, str | os.PathLike):
+        raise VnlError(f"run_dir must be the path of a run directory (str or Path), got {run_dir!r}")
+    if not isinstance(deterministic, bool | np.bool_):
+        raise VnlError(f"deterministic must be True or False, got {deterministic!r}")
+    listed = isinstance(env_set, list | tuple) and all(isinstance(a, str) for a in env_set)
+    if env_set is not None and not listed:
+        raise VnlError(f"env_set must be a list of 'env_config.KEY=VALUE' strings, got {env_set!r}")
+    if env is not None and not (callable(getattr(env, "reset", None)) and callable(getattr(env, "step", None))):
+        raise VnlError(f"env must be a vnl Env (or None: built from the run's config), got {type(env).__name__}")
+
+
 def load_run(
     run_dir: str | Path,
     deterministic: bool = True,
-    step: int | None = None,
+    step: Step = None,
     env_set: list[str] | None = None,
     env: Env | None = None,
 ) -> LoadedRun:
-    """Reads config.yaml and the newest readable (or the given) checkpoint of `run_dir`, with the
-    env the checkpoint was trained on (a curriculum run: its stage's); with `env_set`
+    """Reads config.yaml and the newest readable (or the given, `Step`) checkpoint of `run_dir`,
+    with the env the checkpoint was trained on (a curriculum run: its stage's); with `env_set`
     (`env_config.KEY=VALUE` strings) the env is that variant of it. `env`: that env, already built
-    (the trainer's final video), instead of building it."""
+    (the trainer's final video), instead of building it. Arguments of the wrong type are a
+    `VnlError` naming what is accepted."""
+    _check_arguments(run_dir, deterministic, env_set, env)
+    step = checkpoint_step(run_dir, step)
     saved = read_config(run_dir)
     loaded_step, params = checkpoint.load(run_dir, step)
     config = trained_config(saved, run_dir, loaded_step)
@@ -163,14 +202,16 @@ def best_checkpoint(run_dir: str | Path) -> tuple[int, str, float]:
     return found[0], metric, found[1]
 
 
-def load_policy(run_dir: str | Path, deterministic: bool = True, step: int | None = None) -> Policy | RecurrentPolicy:
+def load_policy(run_dir: str | Path, deterministic: bool = True, step: Step = None) -> Policy | RecurrentPolicy:
     """The policy of a trained run: `policy(obs, rng) -> action`, or for a recurrent run
     (`network.core`) a `RecurrentPolicy` (`initial_state`, `step(obs, state, rng)`).
 
     Args:
       run_dir: a directory written by `vnl train`.
       deterministic: the mean action (True) or a sample from the policy distribution.
-      step: a checkpoint step; None takes the newest readable checkpoint.
+      step: a checkpoint step (an integer >= 0), "best" (the best evaluated checkpoint kept,
+        `log.keep_best`), or "latest"/None (the newest readable checkpoint). Anything else (a
+        float, a bool, another string) is a `VnlError`.
 
     Works for runs with any network sizes: they are read from the run's config.yaml.
     """

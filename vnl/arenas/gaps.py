@@ -68,6 +68,10 @@ class GapsParams:
             )
         if max(self.behind, self.ahead, self.visual_ahead) > 1000:
             raise VnlError("behind, ahead and visual_ahead must be at most 1000")
+        if self.max_geom_pairs > 100_000:
+            raise VnlError(
+                f"max_geom_pairs must be at most 100,000 (0: every pair), got {self.max_geom_pairs:,}; use 0 or fewer"
+            )
 
     @property
     def pieces(self) -> int:

@@ -8,7 +8,8 @@ before JAX and MuJoCo are imported, so a typo costs a fraction of a second — a
 by the library, as a `VnlError`, before anything is compiled.
 
 Everything after parsing runs inside one handler: a `VnlError` prints its line and exits with its
-code (2; 3 for a diverged run), Ctrl-C exits 130, a failure of the machine (a full disk, no memory,
+code (2; 3 for a diverged run), Ctrl-C exits 130 (a SIGTERM during a write 143, the write's
+temporary file removed), a failure of the machine (a full disk, no memory,
 also when a library reports it inside another exception or a compiled program's host function
 raised it) is one line with exit code 1 (`vnl.errors.describe`); anything else is a bug and keeps
 its traceback.
@@ -20,7 +21,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from vnl import errors, headless
+from vnl import durable, errors, headless
 from vnl.cli import (
     cmd_analyze,
     cmd_compare,
@@ -60,6 +61,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("vnl: interrupted", file=sys.stderr)
         return 130
+    except durable.Terminated as e:  # SIGTERM during a write: its temporary file was removed
+        print("vnl: terminated (SIGTERM); the file being written was left as it was", file=sys.stderr)
+        return int(e.code)
     except Exception as e:  # noqa: BLE001 - what is not described below is re-raised
         return _failed(e)
 

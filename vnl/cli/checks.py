@@ -97,33 +97,19 @@ def writable_dir(path: str | Path, what: str) -> None:
 
 
 def output(path: str | Path, kinds: tuple[str, ...], inputs: Iterable[str | Path] = (), given: bool = True) -> None:
-    """An output file a command will write (`given`: by `--out`; else its default)."""
+    """An output file a command will write (`given`: by `--out`; else its default). Outputs are
+    written as new files, never through a link: a default output that is a link (in a run copied
+    with `cp -as`) is replaced by the new file, what it points to left alone; an `--out` that is
+    a link is refused (the user may have meant its target)."""
     p, inputs = Path(path), list(inputs)
     what = "--out" if given else "the output (the default; choose another with --out)"
-    if p.is_dir():
+    link = p.is_symlink()
+    if p.is_dir() and not link:
         raise VnlError(f"{what} {path} is a directory; give a file name")
     if p.suffix.lower() not in kinds:
         raise VnlError(f"{what} {path}: expected a {' or '.join(kinds)} file name")
-    if p.is_symlink():  # the write replaces the link's target (`durable.write_atomic`): check that
-        target = Path(os.path.realpath(p))
-        if not p.exists():
-            raise VnlError(
-                f"{what} {path} is a symbolic link to nothing ({target} is missing, or links loop); "
-                "remove the link or choose another --out"
-            )
-        _not_an_input(what, path, target, inputs)
-        if target.suffix.lower() not in kinds:
-            raise VnlError(f"{what} {path} links to {target}: expected a {' or '.join(kinds)} file")
-        p = target
-    parent = p.parent
-    if not parent.is_dir():
-        state = "is not a directory" if parent.exists() else "does not exist"
-        raise VnlError(f"{what} {path}: {parent} {state}; create the directory first or choose another --out")
-    if read_only(parent):
-        raise VnlError(f"{what} {path}: {parent} is on a read-only file system; choose another --out")
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise VnlError(f"{what} {path}: cannot write to {parent} (permission denied)")
-    if p.exists():
+    _output_parent(p, what, path)
+    if p.exists() and not link:
         if not stat.S_ISREG(p.stat().st_mode):
             raise VnlError(f"{what} {path} exists and is not a regular file; choose another --out")
         if not os.access(p, os.W_OK):
@@ -132,6 +118,24 @@ def output(path: str | Path, kinds: tuple[str, ...], inputs: Iterable[str | Path
     _not_an_input(what, path, target, inputs)
     if layout.is_run_managed(target) or layout.is_run_managed(p):
         raise VnlError(f"{what} {path} is a file `vnl train` keeps in its run directory; choose another --out")
+    if given and link:
+        to = f"to {target}" if p.exists() else f"to nothing: {os.readlink(p)}"
+        raise VnlError(
+            f"--out {path} is a symbolic link ({to}); vnl writes a new file in place of a link, never through "
+            "it: give the file to write (the link's target) as --out, or another name"
+        )
+
+
+def _output_parent(p: Path, what: str, path: str | Path) -> None:
+    """The folder of an output exists and may be written."""
+    parent = p.parent
+    if not parent.is_dir():
+        state = "is not a directory" if parent.exists() else "does not exist"
+        raise VnlError(f"{what} {path}: {parent} {state}; create the directory first or choose another --out")
+    if read_only(parent):
+        raise VnlError(f"{what} {path}: {parent} is on a read-only file system; choose another --out")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise VnlError(f"{what} {path}: cannot write to {parent} (permission denied)")
 
 
 def _not_an_input(what: str, path: str | Path, target: str | Path, inputs: Iterable[str | Path]) -> None:
@@ -143,6 +147,8 @@ def new_run_dir(path: str | Path, flag: str = "--out") -> None:
     """The directory of a new run: not a file, holding none of a run's files (a user's
     config.yaml included), and creatable."""
     p = Path(path)
+    if p.is_symlink() and not p.exists():
+        raise VnlError(f"{flag} {path} is a symbolic link to nothing ({os.readlink(p)}); give a directory for the run")
     if p.exists() and not p.is_dir():
         raise VnlError(f"{flag} {path} is a file; give a directory for the run")
     found = layout.run_files_in(p)

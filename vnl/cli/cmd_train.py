@@ -12,7 +12,7 @@ from typing import Any
 from vnl import errors, typed_config
 from vnl.cli import checks, options, process
 from vnl.errors import VnlError
-from vnl.io import runlock
+from vnl.io import layout, runlock
 
 
 def add(sub: Any) -> None:
@@ -83,6 +83,7 @@ def check(args: argparse.Namespace) -> None:
     if args.resume:
         checks.run_dir(args.resume, "--resume")
         checks.writable_dir(args.resume, "--resume")
+        layout.check_own_dirs(args.resume, (layout.CHECKPOINTS,))
         holder = runlock.holder(args.resume)
         if holder is not None:
             raise VnlError(runlock.busy_message(args.resume, holder))

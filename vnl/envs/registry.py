@@ -130,6 +130,8 @@ def names() -> list[str]:
 
 def entry(name: str) -> Entry:
     """The registry entry for `name`; an unknown name lists the valid ones."""
+    if not isinstance(name, str):
+        raise VnlError(f"an environment's name is a string, got {name!r}; valid names are: {', '.join(names())}")
     try:
         return _REGISTRY[name]
     except KeyError:

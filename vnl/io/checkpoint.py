@@ -22,6 +22,10 @@ process left. Durability: every file of the temporary directory is fsynced befor
 and every rename is followed by an fsync of the directory (`vnl.durable`), so a power cut never
 leaves a step name pointing at data still in the page cache.
 
+Links are never written through: a step directory that is a link (a copied run's) is removed as
+a link, its target left alone, and a `checkpoints` folder that is a link is refused
+(`layout.check_own_dirs`).
+
 Parameters that are not finite (a diverged run) are never written (`save` refuses them) and a
 checkpoint holding them is not loaded. Loading skips (with a warning) a checkpoint that is
 corrupt — unreadable files, non-finite parameters, a meta.json that is not what `save` writes
@@ -31,12 +35,16 @@ permission problem) is not corruption: it stops with a `VnlError` and nothing is
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import errno
 import json
+import logging
 import os
 import re
 import shutil
 import warnings
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -44,6 +52,7 @@ import numpy as np
 
 from vnl import durable, safe_yaml
 from vnl.errors import VnlError
+from vnl.io import layout
 
 _STEP_DIR = re.compile(r"^\d{12}$")
 _REPLACED = re.compile(r"^\.replaced-(\d{12})$")
@@ -78,13 +87,14 @@ def tidy(run_dir: str | Path) -> None:
     root = checkpoint_dir(run_dir)
     if not root.is_dir():
         return
+    layout.check_own_dirs(run_dir, (layout.CHECKPOINTS,))
     for p in root.iterdir():
         if p.name.startswith((".tmp-", ".deleting-")):
-            shutil.rmtree(p, ignore_errors=True)
+            durable.remove_tree(p)
         elif m := _REPLACED.match(p.name):
             final = root / m.group(1)
             if final.is_dir():
-                shutil.rmtree(p, ignore_errors=True)
+                durable.remove_tree(p)
             else:
                 durable.rename(p, final)
 
@@ -94,7 +104,7 @@ def _remove(path: Path) -> None:
     checkpoint under a step name."""
     doomed = path.with_name(f".deleting-{path.name.removeprefix('.replaced-')}-{os.getpid()}")
     durable.rename(path, doomed)
-    shutil.rmtree(doomed, ignore_errors=True)
+    durable.remove_tree(doomed)
 
 
 def software_versions() -> dict[str, str]:
@@ -157,6 +167,7 @@ def save(
     if bad or not _finite_tree(params):
         raise ValueError(f"refusing to write checkpoint {step}: non-finite parameters ({', '.join(bad[:3])})")
     root = checkpoint_dir(run_dir)
+    layout.check_own_dirs(run_dir, (layout.CHECKPOINTS,))
     root.mkdir(parents=True, exist_ok=True)
     tidy(run_dir)
     final = root / f"{step:012d}"
@@ -264,7 +275,22 @@ def best(run_dir: str | Path, metric: str = "eval/episode_reward") -> tuple[int,
     return -step, value
 
 
+def check_step(step: Any) -> int | None:
+    """`step` as a checkpoint step: None, or an integer >= 0 (a Python int or an integral numpy
+    integer; not a bool, a float or a string, which would be looked up as another key or
+    formatted wrongly); else a `VnlError` naming what is accepted."""
+    if step is None:
+        return None
+    if isinstance(step, (bool, np.bool_)) or not isinstance(step, (int, np.integer)) or step < 0:
+        raise VnlError(
+            f"step must be a checkpoint step, an integer >= 0 (or None: the newest readable), got {step!r} "
+            f"({type(step).__name__})"
+        )
+    return int(step)
+
+
 def _candidates(run_dir: str | Path, step: int | None) -> list[int]:
+    step = check_step(step)
     available = steps(run_dir)
     if not available:
         raise VnlError(f"no checkpoint in {checkpoint_dir(run_dir)}; train first with `vnl train ENV --out {run_dir}`")
@@ -297,10 +323,56 @@ def _first_readable(run_dir: str | Path, step: int | None, read: Any, what: str)
                     f"could not read checkpoint {path} ({type(e).__name__}: {e.strerror or e}); this is a storage "
                     "error, not a corrupt checkpoint, so nothing was changed: check the file system and try again"
                 ) from None
-            errors.append(f"step {s}: {type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}")
+            first = str(e).splitlines()[0] if str(e) else ""
+            first = first if len(first) <= 240 else f"{first[:240]}..."  # tensorstore's run to kilobytes
+            errors.append(f"step {s}: {type(e).__name__}: {first}")
             if step is None:
                 warnings.warn(f"checkpoint {path} is unreadable ({errors[-1]}); trying an older one", stacklevel=3)
     raise VnlError(f"no readable {what} in {checkpoint_dir(run_dir)} ({'; '.join(errors)})")
+
+
+class _DrainingLoop(asyncio.SelectorEventLoop):
+    """An event loop that lets its pending tasks finish before it closes."""
+
+    def close(self) -> None:
+        if not self.is_running() and not self.is_closed():
+            pending = [t for t in asyncio.all_tasks(self) if not t.done()]
+            if pending:
+                self.run_until_complete(asyncio.gather(*pending, return_exceptions=True))
+        super().close()
+
+
+class _DrainingPolicy(asyncio.DefaultEventLoopPolicy):
+    def new_event_loop(self) -> asyncio.AbstractEventLoop:
+        return _DrainingLoop()
+
+
+@contextlib.contextmanager
+def _quiet_failed_read() -> Iterator[None]:
+    """A read of orbax's that fails prints nothing of its own: the caller reports the failure.
+
+    orbax runs a restore in a new event loop and closes it when the first read fails (a truncated
+    checkpoint), while tensorstore still finishes the other reads and calls `call_soon_threadsafe`
+    on the closed loop: one "RuntimeError: Event loop is closed" traceback each on stderr
+    (docs/developers/upstream.md#orbax-and-tensorstore). The loops made in the block finish their pending tasks
+    before closing. orbax's own log records (absl) are kept back and dropped if the read fails."""
+    held: list[logging.LogRecord] = []
+
+    def keep(record: logging.LogRecord) -> bool:
+        held.append(record)
+        return False
+
+    absl = logging.getLogger("absl")
+    policy = asyncio.get_event_loop_policy()
+    asyncio.set_event_loop_policy(_DrainingPolicy())
+    absl.addFilter(keep)
+    try:
+        yield
+    finally:
+        absl.removeFilter(keep)
+        asyncio.set_event_loop_policy(policy)
+    for record in held:  # the read succeeded: its log records as they were
+        absl.handle(record)
 
 
 def _read_params(path: Path, step: int) -> Any:
@@ -308,7 +380,8 @@ def _read_params(path: Path, step: int) -> Any:
 
     # Runs written before train_state existed kept the params at the top of the step directory.
     target = path / PARAMS if (path / PARAMS).is_dir() else path
-    params = brax_checkpoint.load(target.absolute())
+    with _quiet_failed_read():
+        params = brax_checkpoint.load(target.absolute())
     if not _finite_tree(params):
         raise ValueError("its parameters are not finite (a diverged run)")
     return params

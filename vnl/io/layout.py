@@ -3,7 +3,10 @@ Imports nothing heavy (the CLI checks outputs against it before JAX is imported)
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
+
+from vnl.errors import VnlError
 
 CONFIG = "config.yaml"
 METRICS = "metrics.jsonl"
@@ -38,3 +41,23 @@ def is_run_managed(path: str | Path) -> bool:
             name = p.relative_to(parent).parts[0]
             return name in RUN_FILES or name == LOCK or (name.startswith(f"{METRICS}.") and name.endswith(".bak"))
     return False
+
+
+WRITTEN_DIRS = (CHECKPOINTS, "tensorboard", "wandb")
+"""The folders of a run that vnl (or a tracker) writes new files into and removes files from."""
+
+
+def check_own_dirs(run_dir: str | Path, names: tuple[str, ...] = WRITTEN_DIRS) -> None:
+    """`VnlError` when one of the folders `names` of `run_dir` is a symbolic link: writing the run
+    would add and remove files in the folder it points to (another run's, when the run is a copy
+    made with `ln -s`), so it is refused with the fix. (A folder whose files are links, as `cp -as`
+    makes, is fine: vnl never writes through them.)"""
+    for name in names:
+        path = Path(run_dir) / name
+        if path.is_symlink():
+            target = os.path.realpath(path)
+            raise VnlError(
+                f"{path} is a symbolic link (to {target}); continuing the run would write and delete files there, "
+                f"outside the run directory: make it a folder of the run's own (e.g. `rm {path} && cp -as {target} "
+                f"{path}`, whose links vnl replaces rather than writes through) and run this again"
+            )

@@ -19,11 +19,16 @@ class JsonlWriter:
     fail when the file is closed. A write that fails (a full disk) cuts the file back to its last
     complete line, so no partial line is left for a later write to follow, and raises the
     `OSError`; the writer then refuses further writes. `close` never raises.
+
+    A file that is a link (a run copied with `cp -as`, kept by DVC or git-annex) is first
+    replaced by a copy of its own (`durable.own_file`), so appending never changes the original.
     """
 
     def __init__(self, path: str | Path) -> None:
         self._path = Path(path)
-        self._fd: int | None = os.open(self._path, os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_CLOEXEC, 0o644)
+        durable.own_file(self._path)
+        flags = os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_CLOEXEC | os.O_NOFOLLOW
+        self._fd: int | None = os.open(self._path, flags, 0o644)
         self._good = os.fstat(self._fd).st_size  # the size after the last complete line
         self.broken: OSError | None = None
 

@@ -7,7 +7,10 @@ checkpoints and metrics with the first's. The lock is `flock(LOCK_EX)` on an ope
 kernel releases it when the holder exits in any way, SIGKILL included, so a crashed run never
 leaves a stale lock behind (the file stays; holding it is what counts). On NFS, Linux emulates
 `flock` with byte-range locks, which the server arbitrates across hosts. The file records the
-holder's pid, host, command and start time, for the message. Imports nothing heavy.
+holder's pid, host, command and start time, for the message. A lock file that is a link (a run
+copied with `cp -as`) is replaced by a new file of the run's own before it is locked: the copy
+and its original are two runs, and writing the holder never truncates the original's file.
+Imports nothing heavy.
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from vnl import durable
 from vnl.errors import VnlError
 from vnl.io.layout import LOCK
 
@@ -33,6 +37,24 @@ RETRY_SECONDS = 1.0
 
 def _path(run_dir: str | Path) -> Path:
     return Path(run_dir) / LOCK
+
+
+def _open_own(path: Path) -> int:
+    """The lock file at `path` opened for writing (created if missing), a file of this run's own:
+    a symbolic link or a hard-linked file there is first replaced by a new empty file."""
+    for _ in range(8):
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | os.O_NOFOLLOW, 0o644)
+        except OSError as e:
+            if e.errno != errno.ELOOP:
+                raise
+            durable.write_atomic(path, b"")  # in place of the link
+            continue
+        if os.fstat(fd).st_nlink == 1:
+            return fd
+        os.close(fd)
+        durable.write_atomic(path, b"")  # a new file in place of the shared one
+    raise OSError(errno.ELOOP, "it keeps being replaced by a link", str(path))
 
 
 def _read_info(fd: int) -> dict[str, Any]:
@@ -63,7 +85,7 @@ def hold(run_dir: str | Path, command: str | None = None) -> Iterator[None]:
     deadline = time.monotonic() + RETRY_SECONDS
     while True:
         try:
-            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+            fd = _open_own(path)
         except OSError as e:
             raise VnlError(f"cannot lock {run_dir} for writing: {path}: {e.strerror or e}") from None
         try:
@@ -78,7 +100,7 @@ def hold(run_dir: str | Path, command: str | None = None) -> Iterator[None]:
                 continue
             raise VnlError(busy_message(run_dir, info)) from None
         try:  # the file we locked must still be the one at `path` (not one deleted since)
-            same = os.fstat(fd).st_ino == os.stat(path).st_ino
+            same = os.fstat(fd).st_ino == os.lstat(path).st_ino
         except FileNotFoundError:
             same = False
         if same:
@@ -100,14 +122,17 @@ def hold(run_dir: str | Path, command: str | None = None) -> Iterator[None]:
 
 def holder(run_dir: str | Path) -> dict[str, Any] | None:
     """The recorded holder of `run_dir`'s lock when a process holds it now, else None (no
-    process, or no lock file). Tests by taking the lock for an instant (`hold` retries for
-    `RETRY_SECONDS`, so it never fails for this)."""
+    process, or no lock file, or a link that `hold` would replace by a file of the run's own).
+    Tests by taking the lock for an instant (`hold` retries for `RETRY_SECONDS`, so it never
+    fails for this)."""
     path = _path(run_dir)
     try:
-        fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC)
+        fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC | os.O_NOFOLLOW)
     except OSError:
         return None
     try:
+        if os.fstat(fd).st_nlink > 1:
+            return None
         try:
             fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
         except OSError as e:

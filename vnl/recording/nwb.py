@@ -23,6 +23,7 @@ ends. Layout:
 from __future__ import annotations
 
 import json
+import os
 import re
 import uuid
 from datetime import UTC, datetime
@@ -256,14 +257,30 @@ def _measures(ds: Any) -> dict[str, str]:
     return {ds[v].attrs["metric"]: v for v in ds.data_vars if "metric" in ds[v].attrs}
 
 
+def check_output(path: str | Path) -> None:
+    """`VnlError` unless `path` is a file `write` can make: not a directory, in an existing folder
+    this process may write. Made before the NWB file is built; a link at `path` is replaced by
+    the new file (`durable.write_atomic`), never written through."""
+    path = Path(os.path.abspath(path))
+    if path.is_dir() and not path.is_symlink():
+        raise VnlError(f"{path} is a directory; give the path of the .nwb file to write")
+    if not path.parent.is_dir():
+        state = "is not a directory" if path.parent.exists() else "does not exist"
+        raise VnlError(f"cannot write {path}: {path.parent} {state}; create it first or choose another path")
+    if not os.access(path.parent, os.W_OK | os.X_OK):
+        raise VnlError(f"cannot write {path}: {path.parent} is not writable (permission denied)")
+
+
 def write(
     ds: Any, path: str | Path, config: str | None = None, command: str | None = None, experimenter: str | None = None
 ) -> Path:
     """Writes the recording `ds` (a `vnl.record.record` dataset) as an NWB file at `path`
     (atomically), with the run's `config` text, the `command` that made it and who ran it
-    (`experimenter`, "Last, First"; without one nwbinspector suggests adding it)."""
+    (`experimenter`, "Last, First"; without one nwbinspector suggests adding it). `path` is
+    checked first (`check_output`)."""
     from pynwb import NWBHDF5IO, TimeSeries
 
+    check_output(path)
     episode, time, first = _steps(ds)
     if not len(episode):
         raise VnlError("the recording has no active steps to export")

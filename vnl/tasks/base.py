@@ -27,6 +27,8 @@ from vnl.walkers.from_file import file_sha256
 
 UPRIGHT_COS = float(np.cos(np.deg2rad(45.0)))
 """A walker counts as upright while its root body's z-axis is within 45° of vertical."""
+MAX_SCAN = 1024
+"""The most points a height scan (`ground_scan`, `terrain_scan`) takes: each is an observation entry."""
 
 
 @dataclasses.dataclass(frozen=True)

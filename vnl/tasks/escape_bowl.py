@@ -33,6 +33,7 @@ from vnl.errors import VnlError
 from vnl.heightfield import Grid
 from vnl.quiet_mjx import mjx
 from vnl.tasks.base import (
+    MAX_SCAN,
     WalkerTask,
     WalkerTaskConfig,
     body_id,
@@ -74,6 +75,11 @@ class EscapeBowlConfig(WalkerTaskConfig):
             raise VnlError(f"deviation_angle must be in [0, 180) degrees, got {self.deviation_angle}")
         if not np.all(np.isfinite(np.asarray(self.terrain_scan, dtype=float))):
             raise VnlError(f"terrain_scan must be (forward, left) points in metres, got {list(self.terrain_scan)}")
+        if len(self.terrain_scan) > MAX_SCAN:
+            raise VnlError(
+                f"terrain_scan has {len(self.terrain_scan):,} points, at most {MAX_SCAN:,} (each is an observation "
+                "entry); scan fewer points"
+            )
 
 
 RODENT_ESCAPE_BOWL = EscapeBowlConfig()

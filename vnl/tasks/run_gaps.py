@@ -38,6 +38,7 @@ from vnl.arenas import gaps
 from vnl.errors import VnlError
 from vnl.quiet_mjx import mjx
 from vnl.tasks.base import (
+    MAX_SCAN,
     FootGeoms,
     WalkerTask,
     WalkerTaskConfig,
@@ -122,6 +123,11 @@ class RunGapsConfig(WalkerTaskConfig):
             raise VnlError(f"healthy_reward must be >= 0, got {self.healthy_reward}")
         if any(not np.isfinite(d) for d in self.ground_scan):
             raise VnlError(f"ground_scan must be finite distances in metres, got {list(self.ground_scan)}")
+        if len(self.ground_scan) > MAX_SCAN:
+            raise VnlError(
+                f"ground_scan has {len(self.ground_scan):,} distances, at most {MAX_SCAN:,} (each is an observation "
+                "entry); scan fewer points"
+            )
         if not 0 <= self.spawn_x < c.start_length:
             raise VnlError(f"spawn_x must be in the gapless start region [0, {c.start_length}), got {self.spawn_x}")
 

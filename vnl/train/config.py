@@ -21,7 +21,20 @@ from vnl.walkers.from_file import file_sha256
 MAX_ENVS = 2**20
 MAX_LAYER = 2**16
 MAX_EPISODE_LENGTH = 10**7
+MAX_STEPS_PER_TRAINING_STEP = 2**31
+MAX_STAGES = 1000
 """Sanity bounds: far above any real run, far below what would exhaust memory before failing."""
+LIMITS = {  # key -> (upper bound, the fix): counts and sizes of a run (each also >= 1)
+    "num_timesteps": (2**62, "train for fewer steps"),
+    "num_envs": (MAX_ENVS, "use fewer parallel environments"),
+    "batch_size": (MAX_ENVS, "use a smaller batch"),
+    "num_minibatches": (2**16, "use fewer minibatches"),
+    "num_updates_per_batch": (10**4, "use fewer updates per batch"),
+    "unroll_length": (10**4, "use shorter unrolls"),
+    "action_repeat": (10**3, "repeat each action fewer times"),
+    "num_evals": (10**5, "evaluate less often"),
+    "num_eval_envs": (MAX_ENVS, "evaluate on fewer environments"),
+}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -80,6 +93,15 @@ class PPOConfig:
         for key in positive:
             if getattr(self, key) < 1:
                 raise VnlError(f"{key} must be >= 1, got {getattr(self, key)}")
+        for key, (most, fix) in LIMITS.items():
+            if getattr(self, key) > most:
+                raise VnlError(f"{key} must be at most {most:,}, got {getattr(self, key):,}; {fix}")
+        if self.env_steps_per_training_step > MAX_STEPS_PER_TRAINING_STEP:
+            raise VnlError(
+                f"batch_size × num_minibatches × unroll_length × action_repeat is {self.env_steps_per_training_step:,} "
+                f"environment steps per training step (all held in memory), at most {MAX_STEPS_PER_TRAINING_STEP:,}; "
+                "make one of them smaller"
+            )
         for key in ("learning_rate", "reward_scaling"):
             if not getattr(self, key) > 0:
                 raise VnlError(f"{key} must be > 0, got {getattr(self, key)}")
@@ -100,9 +122,6 @@ class PPOConfig:
         for key in ("discounting", "gae_lambda", "clipping_epsilon"):
             if not 0 < getattr(self, key) <= 1:
                 raise VnlError(f"{key} must be in (0, 1], got {getattr(self, key)}")
-        for key in ("num_envs", "batch_size", "num_eval_envs"):
-            if getattr(self, key) > MAX_ENVS:
-                raise VnlError(f"{key} must be at most {MAX_ENVS:,}, got {getattr(self, key):,}")
         if (self.batch_size * self.num_minibatches) % self.num_envs:
             raise VnlError(
                 f"batch_size × num_minibatches ({self.batch_size} × {self.num_minibatches} = "
@@ -153,22 +172,27 @@ class NetworkConfig:
     core_size: int = 128
 
     def validate(self) -> None:
-        if self.core_size < 1:
-            raise VnlError(f"network.core_size must be >= 1, got {self.core_size}")
+        if not 1 <= self.core_size <= MAX_LAYER:
+            raise VnlError(
+                f"core_size must be in 1..{MAX_LAYER:,} units, got {self.core_size:,}; use a smaller recurrent core"
+            )
         if not self.init_noise_std > 0:
-            raise VnlError(f"network.init_noise_std must be > 0, got {self.init_noise_std}")
-        for key in (
-            "policy_hidden_layer_sizes",
-            "value_hidden_layer_sizes",
-            "cnn_channels",
-            "cnn_kernel_sizes",
-            "cnn_strides",
+            raise VnlError(f"init_noise_std must be > 0, got {self.init_noise_std}")
+        for key, most, what in (
+            ("policy_hidden_layer_sizes", MAX_LAYER, "units"),
+            ("value_hidden_layer_sizes", MAX_LAYER, "units"),
+            ("cnn_channels", 4096, "channels"),
+            ("cnn_kernel_sizes", 512, "pixels (the largest image)"),
+            ("cnn_strides", 512, "pixels (the largest image)"),
         ):
             sizes = getattr(self, key)
             if not sizes or any(s < 1 for s in sizes):
                 raise VnlError(f"{key} must be a non-empty list of positive sizes, got {list(sizes)}")
-            if any(s > MAX_LAYER for s in sizes) or len(sizes) > 64:
-                raise VnlError(f"{key}: at most 64 layers of at most {MAX_LAYER:,} units, got {list(sizes)}")
+            if any(s > most for s in sizes) or len(sizes) > 64:
+                raise VnlError(
+                    f"{key}: at most 64 layers of at most {most:,} {what}, got {list(sizes)[:8]}"
+                    f"{' ...' if len(sizes) > 8 else ''}; use fewer or smaller layers"
+                )
         n = len(self.cnn_channels)
         if len(self.cnn_kernel_sizes) != n or len(self.cnn_strides) != n:
             raise VnlError(
@@ -211,9 +235,13 @@ class LogConfig:
                 "e.g. eval/episode_reward, or null to keep only the newest checkpoints"
             )
         if not 0 < self.video_seconds <= 3600:
-            raise VnlError(f"video_seconds must be in (0, 3600], got {self.video_seconds}")
-        if not (16 <= self.video_width <= 4096 and 16 <= self.video_height <= 4096):
-            raise VnlError("video_width and video_height must be in 16..4096")
+            raise VnlError(f"video_seconds must be in (0, 3600], got {self.video_seconds}; videos are at most an hour")
+        for key in ("video_width", "video_height"):
+            if not 16 <= getattr(self, key) <= 4096:
+                raise VnlError(
+                    f"{key} must be in 16..4,096 pixels, got {getattr(self, key):,}; MuJoCo's offscreen buffer "
+                    "goes to 4,096"
+                )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -299,6 +327,11 @@ class TrainConfig:
 
     def _validate_curriculum(self) -> None:
         """Every stage's env config is valid, and the stages' steps add up to ppo.num_timesteps."""
+        if len(self.curriculum) > MAX_STAGES:
+            raise VnlError(
+                f"curriculum has {len(self.curriculum):,} stages, at most {MAX_STAGES:,} (each builds its own "
+                "world); merge stages"
+            )
         for i, stage in enumerate(self.curriculum):
             try:
                 registry.env_config(self.env, config_lib.merge(self.env_config, stage.env_config))

@@ -1,10 +1,13 @@
-"""The run directory of a training run: created and checked before anything compiles, and put
-back in order when a run resumes from a checkpoint."""
+"""The run directory of a training run: created and checked before anything compiles, removed
+again when the run is refused or fails before its first checkpoint, and put back in order when a
+run resumes from a checkpoint."""
 
 from __future__ import annotations
 
+import contextlib
+import os
 import shutil
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -14,24 +17,76 @@ import numpy as np
 from vnl import durable
 from vnl import typed_config as config_lib
 from vnl.errors import VnlError
-from vnl.io import checkpoint, layout
+from vnl.io import checkpoint, layout, runlock
 from vnl.io import metrics as metrics_io
 from vnl.tasks.contract import Env
-from vnl.train import recurrent
+from vnl.train import distributed, recurrent
 from vnl.train.config import TrainConfig, resolved
 
 Say = Callable[[str], None]
 
 
-def create_run_dir(run_dir: Path) -> None:
-    """Creates the directory of a new run (so that its lock can be taken in it)."""
+def create_run_dir(run_dir: Path) -> list[Path]:
+    """Creates the directory of a new run (so that its lock can be taken in it); returns the
+    directories it created, the run directory's missing parents included."""
     run_dir = Path(run_dir)
+    if run_dir.is_symlink() and not run_dir.exists():
+        raise VnlError(f"--out {run_dir} is a symbolic link to nothing; give a directory for the run")
     if run_dir.exists() and not run_dir.is_dir():
         raise VnlError(f"--out {run_dir} is a file; give a directory for the run")
+    missing = [d for d in [run_dir, *run_dir.parents] if not os.path.lexists(d)]
     try:
         run_dir.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise VnlError(f"cannot write to run directory {run_dir}: {e.strerror or e}") from None
+    return missing
+
+
+@contextlib.contextmanager
+def new_run(run_dir: Path, config: TrainConfig) -> Iterator[None]:
+    """The directory of a new run for the block: created if missing, locked (`runlock`, for the
+    whole block) and its config.yaml written (`prepare_run_dir`), each on process 0.
+
+    When this or the block fails before the run's first checkpoint (a refusal, an error, a second
+    Ctrl-C while compiling), what it created is removed again on process 0 — the run's files, the
+    lock file, the directories — so the same command, corrected, finds the directory as it was.
+    A run with a checkpoint is kept: it can be resumed."""
+    lead = distributed.is_lead()
+    made = distributed.on_lead(lambda: create_run_dir(run_dir)) or []
+    had_lock = os.path.lexists(Path(run_dir) / layout.LOCK)
+    held = written = False
+    try:
+        with contextlib.ExitStack() as lock:
+            try:
+                distributed.on_lead(lambda: lock.enter_context(runlock.hold(run_dir)))
+                held = lead
+                distributed.on_lead(lambda: prepare_run_dir(run_dir, config))
+                written = lead
+                yield
+            except BaseException:
+                if held and not checkpoint.steps(run_dir):
+                    _remove_run_files(Path(run_dir), written, had_lock)
+                raise
+    except BaseException:
+        for d in made if lead else ():  # deepest first; only those left empty
+            with contextlib.suppress(OSError):
+                d.rmdir()
+        raise
+
+
+def _remove_run_files(run_dir: Path, written: bool, had_lock: bool) -> None:
+    """Removes the files a new run created (`written`: its run files too; the lock file unless it
+    was there before). Called while the lock is held, so no other run starts there meanwhile."""
+    names = [*(layout.RUN_FILES if written else ()), *(() if had_lock else (layout.LOCK,))]
+    for name in names:
+        path = run_dir / name
+        if path.is_dir() and not path.is_symlink():
+            shutil.rmtree(path, ignore_errors=True)
+        else:
+            with contextlib.suppress(OSError):
+                path.unlink()
+    with contextlib.suppress(OSError):
+        durable.fsync_dir(run_dir)
 
 
 def prepare_run_dir(run_dir: Path, config: TrainConfig) -> None:
@@ -54,6 +109,12 @@ def prepare_run_dir(run_dir: Path, config: TrainConfig) -> None:
         config_lib.dump_yaml(resolved(config), str(run_dir / layout.CONFIG))
     except OSError as e:
         raise VnlError(f"cannot write to run directory {run_dir}: {e.strerror or e}") from None
+
+
+def written_dirs(config: TrainConfig) -> tuple[str, ...]:
+    """The folders of the run directory that a session of `config` writes files into."""
+    trackers = (("tensorboard",) if config.log.tensorboard else ()) + (("wandb",) if config.log.wandb else ())
+    return (layout.CHECKPOINTS, *trackers)
 
 
 def checkpoint_bytes(config: TrainConfig, env: Env) -> int:

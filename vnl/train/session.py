@@ -118,6 +118,14 @@ class Session:
         self.evaluations = 0  # evaluations since the start (or the restored checkpoint)
         self.tracker: tracking.Tracker | None = None
         self.t_start = time.time()
+        self._restored_state: LoopState | None = None
+
+    def check_restored(self) -> None:
+        """The state of the checkpoint a resumed run continues from, built from its arrays: a
+        checkpoint of another setup (env, network, ppo.num_envs) is a `VnlError` here, before
+        anything of the run directory is written or locked."""
+        if self.restored is not None and self._restored_state is None:
+            self._restored_state = self.loop.from_arrays(self.restored.arrays)
 
     # ---- the run ---------------------------------------------------------------------------------
 
@@ -262,8 +270,8 @@ class Session:
         the step-0 checkpoint is written a stop request ends the session at once (`interruptible`)."""
         interruptible = self.stop.interruptible
         if self.restored:
-            arrays = self.restored.arrays
-            state = interruptible(lambda: self.loop.from_arrays(arrays), "placing the restored state on the devices")
+            interruptible(self.check_restored, "placing the restored state on the devices")
+            state = self._restored_state
             self._compile(state)
             self.evaluations = 1  # checkpoint_every counts evaluations after the restored one
             return state

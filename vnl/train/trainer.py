@@ -19,13 +19,13 @@ from __future__ import annotations
 
 import contextlib
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 from vnl import typed_config as config_lib
 from vnl.errors import VnlError
-from vnl.io import checkpoint, runlock
+from vnl.io import checkpoint, layout, runlock
 from vnl.io import metrics as metrics_io
 from vnl.train import distributed, loop, rundir, session, warm_start
 from vnl.train.config import TrainConfig, read_config
@@ -55,6 +55,8 @@ def train(
     written. Each world (each curriculum stage's env) is built once (`Worlds`). Process 0 holds
     the run directory's lock (`runlock`) from before config.yaml is written to the end; a
     directory another process writes is refused.
+    A run refused or failed before its first checkpoint leaves nothing behind (`rundir.new_run`);
+    one stopped then keeps its config.yaml, and `resume` starts it again from step 0.
     """
     return _start(config, Path(run_dir), say, finish, progress, saved=None)
 
@@ -82,16 +84,7 @@ def _start(
             parent = warm_start.load_parent(config)
             parent = warm_start.check_layout(parent, worlds.env(0), config.env)  # the env the parent starts in
             config = warm_start.recorded(config, parent)
-        with contextlib.ExitStack() as lock:
-            if saved is None:
-                distributed.on_lead(lambda: rundir.create_run_dir(run_dir))
-            distributed.on_lead(lambda: lock.enter_context(runlock.hold(run_dir)))
-            if saved is None:
-                distributed.on_lead(lambda: rundir.prepare_run_dir(run_dir, config))
-            else:
-                distributed.on_lead(lambda: _check_unchanged(run_dir, []))
-                if config != saved:
-                    distributed.on_lead(lambda: config_lib.dump_yaml(config, str(run_dir / "config.yaml")))
+        with _directory(run_dir, config, saved):
             try:
                 s = stop.interruptible(
                     lambda: Session(config, run_dir, None, say, worlds, parent=parent, progress=progress, stop=stop),
@@ -100,6 +93,23 @@ def _start(
             except CompileInterrupted as e:
                 return _stopped_in_preparation(run_dir, say, e)
             return s.run(finish)
+
+
+@contextlib.contextmanager
+def _directory(run_dir: Path, config: TrainConfig, saved: TrainConfig | None) -> Iterator[None]:
+    """The run directory for a run from step 0, locked for the block: a new one (`saved` None:
+    `rundir.new_run`, removed again if the run fails before its first checkpoint), or `run_dir`
+    again, its config.yaml (`saved`) rewritten only if the config changed."""
+    if saved is None:
+        with rundir.new_run(run_dir, config):
+            yield
+        return
+    with contextlib.ExitStack() as lock:
+        distributed.on_lead(lambda: lock.enter_context(runlock.hold(run_dir)))
+        distributed.on_lead(lambda: _check_unchanged(run_dir, []))
+        if config != saved:
+            distributed.on_lead(lambda: config_lib.dump_yaml(config, str(run_dir / "config.yaml")))
+        yield
 
 
 def _build_worlds(config: TrainConfig, stop: StopRequest, say: Callable[[str], None]) -> Worlds:
@@ -153,6 +163,7 @@ def resume(
     run_dir = Path(run_dir)
     saved = read_config(run_dir)
     config = resume_config(saved, assignments, flags)
+    layout.check_own_dirs(run_dir, rundir.written_dirs(config))  # a linked folder: refused before any work
     loop.check_devices(config)
     seen = checkpoint.steps(run_dir)
     if not seen and from_step is None and not _records(run_dir):
@@ -172,19 +183,21 @@ def resume(
         _check_video_camera(config, worlds)
         _warn_versions(meta, step)
         _say_machine(meta, step, say)
+        restored = Restored(step, arrays, meta)
+        try:
+            s = stop.interruptible(
+                lambda: Session(config, run_dir, restored, say, worlds, progress=progress, stop=stop), PREPARING
+            )
+            # A checkpoint of another setup is refused here, before the lock is taken.
+            stop.interruptible(s.check_restored, "placing the restored state on the devices")
+        except CompileInterrupted as e:
+            return _stopped_before_start(run_dir, say, e)
         with contextlib.ExitStack() as lock:  # taken after the checks above: a refused resume writes nothing
             distributed.on_lead(lambda: lock.enter_context(runlock.hold(run_dir)))
             distributed.on_lead(lambda: _check_unchanged(run_dir, seen))
             if config != saved:
                 distributed.on_lead(lambda: config_lib.dump_yaml(config, str(run_dir / "config.yaml")))
             _say_schedule(config, say)
-            restored = Restored(step, arrays, meta)
-            try:
-                s = stop.interruptible(
-                    lambda: Session(config, run_dir, restored, say, worlds, progress=progress, stop=stop), PREPARING
-                )
-            except CompileInterrupted as e:
-                return _stopped_in_preparation(run_dir, say, e)
             return s.run(finish)
 
 

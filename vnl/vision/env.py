@@ -55,8 +55,11 @@ class VisionConfig:
                 raise VnlError(f"{key} must be in [8, 512] pixels, got {getattr(self, key)}")
         if not self.depth_max > 0:
             raise VnlError(f"depth_max must be > 0 metres, got {self.depth_max}")
-        if self.chunk is not None and self.chunk < 1:
-            raise VnlError(f"chunk must be >= 1, got {self.chunk}")
+        if self.chunk is not None and not 1 <= self.chunk <= 2**16:
+            raise VnlError(
+                f"chunk (images rendered at a time) must be in 1..65,536, got {self.chunk:,}; use a smaller chunk "
+                "(null: the renderer's default)"
+            )
 
 
 def default_camera(model: mujoco.MjModel) -> str:
