@@ -111,7 +111,7 @@ def _lowered_epoch_size(loop: Any, state: Any) -> int:
     """Characters of the training epoch's StableHLO text (lowered again; traced from JAX's cache)."""
     import jax
 
-    from vnl.train.loop import _strip_weak_type
+    from vnl.ppo.loop import _strip_weak_type
 
     training, env = _strip_weak_type((state.training, state.env))
     keys = jax.random.split(state.key, loop.n_devices)

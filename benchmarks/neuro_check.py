@@ -90,7 +90,7 @@ def initial_params(run: Any) -> tuple[Any, Any, Any]:
     for `config.seed` (`PPOLoop.init`: the global key is the first half of PRNGKey(seed))."""
     import jax
 
-    from vnl.train.recurrent_ppo import make_ppo_loop
+    from vnl.ppo.recurrent_ppo import make_ppo_loop
 
     global_key, _ = jax.random.split(jax.random.PRNGKey(run.config.seed))
     state = make_ppo_loop(run.env, run.config).init_training(global_key)

@@ -30,7 +30,7 @@ import numpy as np
 
 from vnl.tasks.contract import Env, State
 from vnl.train import config as train_config
-from vnl.train.loop import PPOLoop
+from vnl.ppo.loop import PPOLoop
 
 GIB = 2**30
 

@@ -1,6 +1,6 @@
 """Training env steps/s of vision PPO next to proprioceptive PPO on the same env, same run.
 
-For each env, vnl's PPO loop (`vnl.train.loop.PPOLoop`, what `vnl train` runs) with the env's
+For each env, vnl's PPO loop (`vnl.ppo.loop.PPOLoop`, what `vnl train` runs) with the env's
 `cpu` preset is timed blind and with `--vision` (the preset's camera size; `--size` overrides
 it): one warm-up epoch (compiles), then `--epochs` epochs of `--steps-per-epoch` training steps.
 The ratio vision/blind is the cost of seeing: rendering every env's image every step and the
@@ -24,7 +24,7 @@ import time
 import jax
 
 from vnl.train import config as train_config
-from vnl.train.loop import PPOLoop
+from vnl.ppo.loop import PPOLoop
 
 
 def steps_per_second(config: train_config.TrainConfig, epochs: int, steps_per_epoch: int) -> float:

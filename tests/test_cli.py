@@ -17,7 +17,7 @@ from vnl.io import checkpoint
 from vnl.io import metrics as metrics_io
 from vnl.io.video import read_mp4
 from vnl.train.config import read_config
-from vnl.train.loop import epoch_length
+from vnl.ppo.loop import epoch_length
 
 pytestmark = pytest.mark.xdist_group("cli")
 

@@ -712,18 +712,21 @@ def recording_cases(ro: Path) -> list[Case]:
         ]
     cases.append(Case("directories as inputs", ["view", "rec.nc", "--step", "0"], "a recording was given"))
     for argv, expect in (
-        (["analyze", "rec.nc", "--out", "dangling_out.png"], "symbolic link to nothing"),
-        (["analyze", "rec.nc", "--method", "encoding", "--out", "loop_out.png"], "symbolic link to nothing"),
-        (["analyze", "rec.nc", "--out", "to_text.png"], "links to"),
-        (["analyze", "rec.nc", "--out", "dir_link"], "is a directory"),
-        (["view", "rec.nc", "--out", "dangling_out.rrd"], "symbolic link to nothing"),
-        (["view", "rec.nc", "--out", "dir_link.rrd"], "is a directory"),
-        (["view", "run", "--out", "dangling_out.rrd"], "symbolic link to nothing"),
-        (["record", "--from", "rec.nc", "--out", "dangling_out.nwb"], "symbolic link to nothing"),
-        (["record", "run", "--out", "dangling_out.nc"], "symbolic link to nothing"),
-        (["record", "run", "--viewer", "--out", "ok.nc"], "symbolic link to nothing"),  # ok.rrd: a link to nothing
-        (["compare", "run", "run", "--out", "dangling_out.png"], "symbolic link to nothing"),
-        (["compare", "run", "run", "--out", "to_text.png"], "links to"),
+        (["analyze", "rec.nc", "--out", "dangling_out.png"], "is a symbolic link (to nothing"),
+        (["analyze", "rec.nc", "--method", "encoding", "--out", "loop_out.png"], "is a symbolic link (to nothing"),
+        (["analyze", "rec.nc", "--out", "to_text.png"], "is a symbolic link (to "),
+        (["analyze", "rec.nc", "--out", "dir_link"], "expected a .png"),
+        (["view", "rec.nc", "--out", "dangling_out.rrd"], "is a symbolic link (to nothing"),
+        (["view", "rec.nc", "--out", "dir_link.rrd"], "is a symbolic link (to "),
+        (["view", "run", "--out", "dangling_out.rrd"], "is a symbolic link (to nothing"),
+        (["record", "--from", "rec.nc", "--out", "dangling_out.nwb"], "is a symbolic link (to nothing"),
+        (["record", "run", "--out", "dangling_out.nc"], "is a symbolic link (to nothing"),
+        (
+            ["record", "run", "--viewer", "--out", "ok.nc"],
+            "is a symbolic link (to nothing",
+        ),  # ok.rrd: a link to nothing
+        (["compare", "run", "run", "--out", "dangling_out.png"], "is a symbolic link (to nothing"),
+        (["compare", "run", "run", "--out", "to_text.png"], "is a symbolic link (to "),
         (["compare", "rec.nc", "run"], "does not say which run"),  # its default output is beside that run
         (["compare", "run", "run", "--out", f"{ro}/x.png"], "read-only"),
         (["view", "rec.nc", "--out", f"{ro}/x.rrd"], "read-only"),

@@ -62,7 +62,7 @@ def test_bad_values_name_the_key(assignment, words):
 
 
 def test_learning_rate_decay_is_linear_over_its_steps_and_fixed_in_config_yaml():
-    from vnl.train.loop import learning_rate
+    from vnl.ppo.loop import learning_rate
 
     assert learning_rate(build()) == pytest.approx(3e-4)  # no final rate: constant
     config = build("ppo.learning_rate_final=1e-5", "ppo.num_timesteps=204800")

@@ -106,7 +106,7 @@ def test_warm_start_begins_with_the_parents_networks(parent, child):
 
 def test_keep_optimizer_takes_the_parents_adam_state(parent):
     from vnl.envs import registry
-    from vnl.train.loop import PPOLoop
+    from vnl.ppo.loop import PPOLoop
 
     config = child_config(parent, keep_optimizer=True)
     loop = PPOLoop(registry.make("test_point", **config.env_config), config)
@@ -129,7 +129,7 @@ def test_warm_start_with_an_added_sensor_begins_as_the_parent(parent, tmp_path, 
     import jax.numpy as jp
 
     from vnl.envs import registry
-    from vnl.train.loop import PPOLoop
+    from vnl.ppo.loop import PPOLoop
 
     config = child_config(parent, observe_target=True)
     env = registry.make("test_point", **config.env_config)

@@ -128,7 +128,7 @@ if POINT:
 DIVERGE = int(os.environ.get("VNL_TEST_DIVERGE_AT", "0"))
 if DIVERGE:  # the DIVERGE-th epoch's parameters become NaN (as a too large step would make them)
     import jax, jax.numpy as jp
-    from vnl.train.loop import PPOLoop
+    from vnl.ppo.loop import PPOLoop
     epoch, calls = PPOLoop.epoch, [0]
     def diverging(self, state):
         state, metrics = epoch(self, state)

@@ -227,14 +227,14 @@ def test_presets_and_config_mappings_are_frozen_copies():
 
 
 def test_brax_evaluator_key_is_where_vnl_sets_it():
-    """vnl.train.loop.run_evaluation sets and reads Brax's private `Evaluator._key`: this fails
+    """vnl.ppo.loop.run_evaluation sets and reads Brax's private `Evaluator._key`: this fails
     loudly if Brax renames it or stops splitting it in `run_evaluation`."""
     import jax
     import tiny_env
     from brax.training import acting
 
     from vnl.envs.wrappers import wrap_for_training
-    from vnl.train.loop import run_evaluation
+    from vnl.ppo.loop import run_evaluation
 
     env = wrap_for_training(tiny_env.PointMass(tiny_env.PointConfig(impl="c")), episode_length=5)  # C: compiles fast
 

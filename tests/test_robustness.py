@@ -27,7 +27,7 @@ from vnl.io import metrics as metrics_io
 from vnl.train import config as train_config
 from vnl.train import rundir, trainer
 from vnl.train.config import read_config
-from vnl.train.loop import PPOLoop
+from vnl.ppo.loop import PPOLoop
 
 pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("robustness"), pytest.mark.usefixtures("point_envs")]
 
@@ -168,7 +168,7 @@ TWO_DEVICES = textwrap.dedent(
     import jax, numpy as np
     from vnl.cli import main
     from vnl.train import config as tc
-    from vnl.train.loop import PPOLoop
+    from vnl.ppo.loop import PPOLoop
     from vnl.envs import registry
     from vnl.train import trainer
     out = {{"devices": jax.local_device_count()}}

@@ -142,7 +142,7 @@ def test_sigterm_during_first_evaluation_stops_at_once_and_resume_starts_the_run
     """A real SIGTERM, sent while the step-0 evaluation compiles and runs, ends the run then (on a
     GPU that can be minutes from its end), with its config kept and nothing trained; `resume`
     starts it from step 0 and trains it as if it had never stopped."""
-    from vnl.train.loop import PPOLoop
+    from vnl.ppo.loop import PPOLoop
 
     cfg = train_config.build("test_point", "tiny", file_values=SETTINGS)
     original, calls = PPOLoop.evaluate, []

@@ -415,7 +415,7 @@ def test_vision_run_trains_resumes_evaluates_and_renders_what_the_policy_sees(tm
 def test_im2col_convolution_equals_xlas_and_leaves_brax_networks_unchanged():
     from jax import lax
 
-    from vnl.train.conv import cpu_convolutions, im2col_conv
+    from vnl.ppo.conv import cpu_convolutions, im2col_conv
 
     key = jax.random.PRNGKey(0)
     x = jax.random.normal(key, (3, 17, 20, 5))

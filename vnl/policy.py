@@ -19,11 +19,11 @@ import numpy as np
 
 from vnl.errors import VnlError
 from vnl.io import checkpoint
+from vnl.ppo.networks import make_network
+from vnl.ppo.recurrent import make_recurrent_networks
 from vnl.tasks.contract import Env
 from vnl.train.config import TrainConfig, read_config
 from vnl.train.config_changes import task_variant
-from vnl.train.networks import make_network
-from vnl.train.recurrent import make_recurrent_networks
 from vnl.train.worlds import trained_config
 
 Policy = Callable[[jax.Array, jax.Array], jax.Array]
@@ -35,7 +35,7 @@ class RecurrentPolicy:
     the start of an episode (zeros: (c, h) for an LSTM, (h,) for a GRU, each batch_shape +
     (core_size,)); `step(obs (..., obs), state, rng) -> (action (..., actions), state)`."""
 
-    networks: Any  # vnl.train.recurrent.RecurrentPPONetworks
+    networks: Any  # vnl.ppo.recurrent.RecurrentPPONetworks
     params: Any  # (normalizer, policy, value) params
     deterministic: bool = True
 
@@ -43,7 +43,7 @@ class RecurrentPolicy:
         return self.networks.policy_network.initial_carry(tuple(batch_shape))
 
     def step(self, obs: Any, state: tuple[jax.Array, ...], rng: jax.Array) -> tuple[jax.Array, Any]:
-        from vnl.train.recurrent_ppo import sample
+        from vnl.ppo.recurrent_ppo import sample
 
         normalizer, params, _ = self.params
         no_reset = jax.numpy.zeros(state[0].shape[:-1])

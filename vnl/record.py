@@ -33,11 +33,11 @@ import numpy as np
 
 from vnl.errors import VnlError
 from vnl.policy import LoadedRun
+from vnl.ppo.networks import ACTIVATIONS, make_network
+from vnl.ppo.recurrent import make_recurrent_networks
 from vnl.recording import behaviour, model
 from vnl.recording.netcdf import write  # noqa: F401 (`vnl.record.write`, the name the tutorials use)
 from vnl.rollout import run_episodes
-from vnl.train.networks import ACTIVATIONS, make_network
-from vnl.train.recurrent import make_recurrent_networks
 
 
 def _dense_outputs(apply: Any, *args: Any) -> tuple[jax.Array, dict[str, jax.Array]]:
@@ -117,7 +117,7 @@ def initial_core(run: LoadedRun, batch_shape: tuple[int, ...]) -> Any:
     """The cores' state at the start of an episode (a recurrent run), else ()."""
     if run.config.network.core is None:
         return ()
-    from vnl.train.recurrent_ppo import zero_carry
+    from vnl.ppo.recurrent_ppo import zero_carry
 
     return zero_carry(make_recurrent_networks(run.config, run.env), batch_shape)
 

@@ -4,7 +4,7 @@ Each checkpoint directory holds:
 
 - `params/`: Brax's `(normalizer_params, policy_params, value_params)` tuple (orbax), all that
   `vnl eval`, `vnl render`, `vnl record` and `vnl.load_policy` need;
-- `train_state.npz`: the whole training state (`vnl.train.loop.LoopState`: optimizer state,
+- `train_state.npz`: the whole training state (`vnl.ppo.loop.LoopState`: optimizer state,
   params, normalizer, env step count, the training environments' states and PRNG keys), one named
   array per leaf, what `vnl train --resume` continues from;
 - `meta.json`: the step, the epoch length, the wall time so far, the metrics record of that

@@ -40,7 +40,10 @@ class BallTaskConfig:
     def validate(self) -> None:
         walkers.spec(self.walker)
         if not (1 <= self.episode_length <= 10**7 and 1 <= self.n_substeps <= 10**4):
-            raise VnlError("episode_length must be in 1..10,000,000 and n_substeps in 1..10,000")
+            raise VnlError(
+                f"episode_length must be in 1..10,000,000 control steps and n_substeps in 1..10,000, got "
+                f"{self.episode_length:,} and {self.n_substeps:,}; shorten the episode or the physics step's split"
+            )
         if not 0 < self.physics_timestep <= 0.05:
             raise VnlError(f"physics_timestep must be in (0, 0.05], got {self.physics_timestep}")
         for key in ("ball_radius", "reach_distance", "gear", "damping"):

@@ -29,9 +29,9 @@ import jax
 import numpy as np
 
 from vnl.errors import VnlError
+from vnl.ppo.loop import LoopState, PPOLoop, epoch_length
+from vnl.ppo.recurrent_ppo import make_ppo_loop
 from vnl.train.config import TrainConfig
-from vnl.train.loop import LoopState, PPOLoop, epoch_length
-from vnl.train.recurrent_ppo import make_ppo_loop
 from vnl.train.worlds import Worlds
 
 STAGE_KEY = ".curriculum_stage"  # the stage index stored with a checkpoint's training state

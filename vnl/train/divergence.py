@@ -17,8 +17,8 @@ from typing import Any
 import jax
 import jax.numpy as jp
 
+from vnl.ppo.loop import LoopState
 from vnl.train.config import TrainConfig
-from vnl.train.loop import LoopState
 
 NOT_CHECKED = ("training/sps", "training/walltime")
 """Training metrics that are timings, not numbers of the optimization."""

@@ -19,8 +19,9 @@ from vnl import typed_config as config_lib
 from vnl.errors import VnlError
 from vnl.io import checkpoint, layout, runlock
 from vnl.io import metrics as metrics_io
+from vnl.ppo import recurrent
 from vnl.tasks.contract import Env
-from vnl.train import distributed, recurrent
+from vnl.train import distributed
 from vnl.train.config import TrainConfig, resolved
 
 Say = Callable[[str], None]

@@ -27,10 +27,10 @@ from vnl import durable, errors
 from vnl import typed_config as config_lib
 from vnl.errors import Diverged, VnlError
 from vnl.io import checkpoint, layout, tracking
+from vnl.ppo.loop import LoopState
 from vnl.tasks.contract import Env
 from vnl.train import curriculum, distributed, divergence, rundir, warm_start
 from vnl.train.config import TrainConfig
-from vnl.train.loop import LoopState
 from vnl.train.progress import make_record, progress_line, summary_line
 from vnl.train.signals import CompileInterrupted, StopRequest
 from vnl.train.worlds import Worlds

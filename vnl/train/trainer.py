@@ -1,11 +1,11 @@
-"""Training runs: Brax's PPO (through `vnl.train.loop`), checkpoints, metrics and resume.
+"""Training runs: Brax's PPO (through `vnl.ppo.loop`), checkpoints, metrics and resume.
 
 `train` starts a run in a new directory, `resume` continues one from a checkpoint exactly where it
 stopped. The pieces, one concern per module:
 
 - `vnl.train.config`: the frozen `TrainConfig`, presets, what a resumed run may change;
-- `vnl.train.networks`: Brax's PPO networks with the configured sizes;
-- `vnl.train.loop`: Brax's PPO composed from its own building blocks, one epoch at a time;
+- `vnl.ppo.networks`: Brax's PPO networks with the configured sizes;
+- `vnl.ppo.loop`: Brax's PPO composed from its own building blocks, one epoch at a time;
 - `vnl.train.rundir`: the run directory (created and checked before compiling; put back in
   order on resume);
 - `vnl.train.session`: the run in progress (evaluate, checkpoint, metrics, progress);
@@ -27,7 +27,8 @@ from vnl import typed_config as config_lib
 from vnl.errors import VnlError
 from vnl.io import checkpoint, layout, runlock
 from vnl.io import metrics as metrics_io
-from vnl.train import distributed, loop, rundir, session, warm_start
+from vnl.ppo import loop
+from vnl.train import distributed, rundir, session, warm_start
 from vnl.train.config import TrainConfig, read_config
 from vnl.train.config_changes import resume_config
 from vnl.train.session import Finish, Progress, Restored, Session, TrainResult
@@ -44,7 +45,7 @@ def train(
     finish: Finish | None = None,
     progress: Progress | None = None,
 ) -> TrainResult:
-    """Trains `config.env` with Brax PPO (`vnl.train.loop`), writing everything into `run_dir`.
+    """Trains `config.env` with Brax PPO (`vnl.ppo.loop`), writing everything into `run_dir`.
 
     Returns when training ends or after a stop was requested (SIGINT/SIGTERM: at the next
     evaluation, or at once before the first training step). `finish(run_dir, env)` runs after a

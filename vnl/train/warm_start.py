@@ -264,7 +264,7 @@ def apply(loop: Any, state: Any, parent: Parent, keep_optimizer: bool) -> Any:
 
 
 # A `normal` policy's MLP sits under MLP_0 (Brax's PolicyModuleWithStd), a recurrent network's
-# under encoder (vnl.train.recurrent).
+# under encoder (vnl.ppo.recurrent).
 FIRST_KERNEL = re.compile(
     r"\.training\.params\.(policy|value)\['params'\](\['MLP_0'\]|\['encoder'\])?\['hidden_0'\]\['kernel'\]"
 )

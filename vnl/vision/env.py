@@ -10,7 +10,7 @@ image always shows the current state). Keys follow Brax's vision convention (`pi
 its vision networks run a CNN on those keys, and its observation normalizer skips them).
 `channels` is 3 for `rgb`, 1 for `depth` (metres mapped linearly from [0, depth_max] to [0, 255],
 farther = 255), 4 for `rgbd`. uint8 keeps the training rollout 4x smaller than float32; the
-networks (`vnl.train.networks`) scale it to [0, 1].
+networks (`vnl.ppo.networks`) scale it to [0, 1].
 
 In training, `vnl.envs.wrappers.wrap_for_training` steps the blind env batched and renders all
 environments' images with `Camera.render_batch` (a few images at a time: faster on a CPU than

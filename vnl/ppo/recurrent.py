@@ -1,6 +1,6 @@
 """Recurrent policy and value networks: observation encoder -> LSTM or GRU core -> head.
 
-`network.core: lstm | gru` (null: Brax's feed-forward MLPs, `vnl.train.networks`) puts a
+`network.core: lstm | gru` (null: Brax's feed-forward MLPs, `vnl.ppo.networks`) puts a
 recurrent core of `network.core_size` units between the encoder (the `*_hidden_layer_sizes` MLP,
 after the CNN with `--vision`) and a linear head. The policy and the value network each have their
 own encoder and core, as Brax keeps its policy and value networks apart: a shared core would let
@@ -25,9 +25,9 @@ from brax.training import distribution, networks
 from brax.training.acme import running_statistics
 from flax import linen
 
+from vnl.ppo.config import NetworkConfig, RunSettings
+from vnl.ppo.networks import ACTIVATIONS
 from vnl.tasks.contract import Env
-from vnl.train.config import NetworkConfig, TrainConfig
-from vnl.train.networks import ACTIVATIONS
 
 Carry = tuple[jax.Array, ...]
 
@@ -150,7 +150,7 @@ def is_recurrent(net: NetworkConfig) -> bool:
     return net.core is not None
 
 
-def make_recurrent_networks(config: TrainConfig, env: Env) -> RecurrentPPONetworks:
+def make_recurrent_networks(config: RunSettings, env: Env) -> RecurrentPPONetworks:
     """Policy and value `RecurrentNetwork`s with the run's sizes, core and action distribution."""
     net = config.network
     normalize = running_statistics.normalize if config.ppo.normalize_observations else (lambda x, y: x)
@@ -186,10 +186,10 @@ def make_recurrent_networks(config: TrainConfig, env: Env) -> RecurrentPPONetwor
     )
 
 
-def make_networks(config: TrainConfig, env: Env) -> Any:
+def make_networks(config: RunSettings, env: Env) -> Any:
     """The run's networks: `RecurrentPPONetworks` with `network.core`, else Brax's `PPONetworks`."""
     if is_recurrent(config.network):
         return make_recurrent_networks(config, env)
-    from vnl.train.networks import make_network
+    from vnl.ppo.networks import make_network
 
     return make_network(config, env)

@@ -11,10 +11,10 @@ import jax
 import jax.numpy as jp
 import optax
 
-from vnl.train.config import TrainConfig
+from vnl.ppo.config import RunSettings
 
 
-def epoch_length(config: TrainConfig) -> int:
+def epoch_length(config: RunSettings) -> int:
     """Training steps per epoch (between two evaluations), as Brax computes it."""
     p = config.ppo
     return math.ceil(p.num_timesteps / (max(p.num_evals - 1, 1) * p.env_steps_per_training_step))
@@ -23,7 +23,7 @@ def epoch_length(config: TrainConfig) -> int:
 KL_RATE_RANGE = (1e-5, 1e-2)  # the learning rate's bounds with `ppo.desired_kl` (Brax's defaults)
 
 
-def learning_rate(config: TrainConfig) -> float | optax.Schedule:
+def learning_rate(config: RunSettings) -> float | optax.Schedule:
     """`ppo.learning_rate`, or with `ppo.learning_rate_final` a linear schedule from it to the
     final rate over the optimizer updates of `ppo.learning_rate_decay_steps` env steps (default
     `num_timesteps`). A function of Adam's update count, which checkpoints keep, so a resumed

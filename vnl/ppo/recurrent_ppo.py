@@ -1,6 +1,6 @@
 """PPO with a recurrent core (`network.core`): `RecurrentPPOLoop`, `PPOLoop` with state.
 
-What changes from `vnl.train.loop.PPOLoop` (Brax's PPO), as purejaxrl's `ppo_rnn` does it:
+What changes from `vnl.ppo.loop.PPOLoop` (Brax's PPO), as purejaxrl's `ppo_rnn` does it:
 
 - the training envs' state is (env states, core states): each env carries its policy's and its
   value network's core state (`{"policy": carry, "value": carry}`) from step to step and from
@@ -31,8 +31,8 @@ from brax import envs as brax_envs
 from brax.training import types as brax_types
 from brax.training.agents.ppo.losses import compute_gae
 
-from vnl.train.loop import PPOLoop, TrainingState
-from vnl.train.recurrent import RecurrentPPONetworks, make_recurrent_networks
+from vnl.ppo.loop import PPOLoop, TrainingState
+from vnl.ppo.recurrent import RecurrentPPONetworks, make_recurrent_networks
 
 
 def sample(dist: Any, logits: Any, key: jax.Array, deterministic: bool) -> tuple[jax.Array, dict[str, Any]]:

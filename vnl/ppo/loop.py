@@ -46,9 +46,9 @@ from brax.training.agents.ppo.train import TrainingState
 from vnl.envs import randomize
 from vnl.envs.wrappers import wrap_for_training
 from vnl.errors import VnlError
-from vnl.train.config import TrainConfig
-from vnl.train.networks import make_network
-from vnl.train.schedules import KL_RATE_RANGE, current_learning_rate, epoch_length, learning_rate
+from vnl.ppo.config import RunSettings
+from vnl.ppo.networks import make_network
+from vnl.ppo.schedules import KL_RATE_RANGE, current_learning_rate, epoch_length, learning_rate
 
 AXIS = "i"  # the pmap axis over local devices
 
@@ -87,7 +87,7 @@ def _normalized_spec(observation_size: Any) -> Any:
     return specs.Array((observation_size,), jp.dtype("float32"))
 
 
-def check_devices(config: TrainConfig) -> None:
+def check_devices(config: RunSettings) -> None:
     """`VnlError` unless num_envs and batch_size split evenly over the devices of all processes."""
     p, n = config.ppo, jax.device_count()
     if p.num_envs % n or p.batch_size % n:
@@ -122,7 +122,7 @@ class PPOLoop:
         (a resumed run passes the value it started with).
     """
 
-    def __init__(self, env: Any, config: TrainConfig, training_steps_per_epoch: int | None = None) -> None:
+    def __init__(self, env: Any, config: RunSettings, training_steps_per_epoch: int | None = None) -> None:
         p = config.ppo
         self.config = config
         self.devices = jax.local_devices()
@@ -171,7 +171,7 @@ class PPOLoop:
         self._evaluator = self._make_evaluator(eval_env)
         self.training_walltime = 0.0
 
-    # ---- what a recurrent loop (vnl.train.recurrent_ppo) replaces -----------------------------------
+    # ---- what a recurrent loop (vnl.ppo.recurrent_ppo) replaces -----------------------------------
 
     def _make_network(self, env: Any) -> Any:
         """Brax's PPO networks with the run's sizes."""

@@ -2,7 +2,7 @@
 
 `network_factory(config.network, vision)` is Brax's `network_factory` hook (MLPs, or a CNN per
 `pixels/` observation then MLPs); `make_network(config, env)` builds the networks for an env.
-Training (`vnl.train.loop`) and loading a trained policy (`vnl.policy`) both use it.
+Training (`vnl.ppo.loop`) and loading a trained policy (`vnl.policy`) both use it.
 """
 
 from __future__ import annotations
@@ -19,9 +19,9 @@ from brax.training.acme import running_statistics
 from brax.training.agents.ppo import networks as ppo_networks
 from brax.training.agents.ppo import networks_vision
 
+from vnl.ppo.config import NetworkConfig, RunSettings
+from vnl.ppo.conv import cpu_convolutions
 from vnl.tasks.contract import Env
-from vnl.train.config import NetworkConfig, TrainConfig
-from vnl.train.conv import cpu_convolutions
 
 ACTIVATIONS = {"swish": jax.nn.swish, "relu": jax.nn.relu, "tanh": jax.nn.tanh, "elu": jax.nn.elu}
 
@@ -60,7 +60,7 @@ def network_factory(net: NetworkConfig, vision: bool = False) -> Callable[..., A
     )
 
 
-def make_network(config: TrainConfig, env: Env) -> Any:
+def make_network(config: RunSettings, env: Env) -> Any:
     """Brax's `PPONetworks` (policy, value, action distribution) with the run's sizes (and CNN,
     for an env with pixel observations)."""
     normalize = running_statistics.normalize if config.ppo.normalize_observations else (lambda x, y: x)
@@ -73,7 +73,7 @@ def make_network(config: TrainConfig, env: Env) -> Any:
 def _vision_networks(*args: Any, **kwargs: Any) -> Any:
     """Brax's vision PPO networks, applied to observations whose `pixels/` arrays are uint8."""
     nets = networks_vision.make_ppo_networks_vision(*args, **kwargs)
-    # XLA:CPU runs convolution gradients 10-20x slower inside PPO's loops (vnl.train.conv).
+    # XLA:CPU runs convolution gradients 10-20x slower inside PPO's loops (vnl.ppo.conv).
     convolutions = cpu_convolutions if jax.default_backend() == "cpu" else contextlib.nullcontext
 
     def scaled(net: Any) -> Any:

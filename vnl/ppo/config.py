@@ -1,0 +1,212 @@
+"""PPO's own settings: its hyperparameters (`PPOConfig`), its networks (`NetworkConfig`), their
+bounds, and `RunSettings`, what the algorithm reads of a run's config (`vnl.train.config.TrainConfig`
+is one)."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Literal, Protocol
+
+from vnl.errors import VnlError
+
+MAX_ENVS = 2**20
+MAX_LAYER = 2**16
+MAX_EPISODE_LENGTH = 10**7
+MAX_STEPS_PER_TRAINING_STEP = 2**31
+"""Sanity bounds: far above any real run, far below what would exhaust memory before failing."""
+LIMITS = {  # key -> (upper bound, the fix): counts and sizes of a run (each also >= 1)
+    "num_timesteps": (2**62, "train for fewer steps"),
+    "num_envs": (MAX_ENVS, "use fewer parallel environments"),
+    "batch_size": (MAX_ENVS, "use a smaller batch"),
+    "num_minibatches": (2**16, "use fewer minibatches"),
+    "num_updates_per_batch": (10**4, "use fewer updates per batch"),
+    "unroll_length": (10**4, "use shorter unrolls"),
+    "action_repeat": (10**3, "repeat each action fewer times"),
+    "num_evals": (10**5, "evaluate less often"),
+    "num_eval_envs": (MAX_ENVS, "evaluate on fewer environments"),
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class PPOConfig:
+    """Brax PPO hyperparameters (names as in `brax.training.agents.ppo.train`).
+
+    One training step collects `batch_size * num_minibatches` trajectories of `unroll_length`
+    steps from `num_envs` parallel environments.
+    """
+
+    num_timesteps: int = 1_000_000
+    num_envs: int = 256
+    batch_size: int = 256
+    num_minibatches: int = 8
+    num_updates_per_batch: int = 4
+    unroll_length: int = 10
+    learning_rate: float = 3e-4
+    # None: a constant learning rate. A number: the rate falls linearly from `learning_rate` to it
+    # over the first `learning_rate_decay_steps` env steps (None: all `num_timesteps`), then stays
+    # there, as CleanRL's and SB3's PPO anneal it. config.yaml holds the resolved decay length, so
+    # `vnl train --resume --steps` with a longer total keeps the schedule (and trains on at the
+    # final rate) and a resumed run is the run never stopped.
+    learning_rate_final: float | None = None
+    learning_rate_decay_steps: int | None = None
+    # None: no KL-adaptive rate. A number: Brax's ADAPTIVE_KL schedule (rsl_rl's rule for legged
+    # robots): after each minibatch's gradient the rate is divided by 1.5 when the mean KL of the
+    # policy to the one that collected the data exceeds 2x this, multiplied by 1.5 below half,
+    # within [1e-5, 1e-2], starting from `learning_rate`; the observation normalizer is updated
+    # after the SGD, as Brax does, so the KL compares policies on the same inputs.
+    desired_kl: float | None = None
+    entropy_cost: float = 1e-2
+    discounting: float = 0.97
+    gae_lambda: float = 0.95
+    clipping_epsilon: float = 0.3
+    reward_scaling: float = 10.0
+    normalize_observations: bool = True
+    max_grad_norm: float | None = None
+    action_repeat: int = 1
+    num_evals: int = 7
+    num_eval_envs: int = 64
+    deterministic_eval: bool = True
+    episode_length: int | None = None  # None: the env's own `episode_length`
+
+    def validate(self) -> None:
+        positive = (
+            "num_timesteps",
+            "num_envs",
+            "batch_size",
+            "num_minibatches",
+            "num_updates_per_batch",
+            "unroll_length",
+            "action_repeat",
+            "num_evals",
+            "num_eval_envs",
+        )
+        for key in positive:
+            if getattr(self, key) < 1:
+                raise VnlError(f"{key} must be >= 1, got {getattr(self, key)}")
+        for key, (most, fix) in LIMITS.items():
+            if getattr(self, key) > most:
+                raise VnlError(f"{key} must be at most {most:,}, got {getattr(self, key):,}; {fix}")
+        if self.env_steps_per_training_step > MAX_STEPS_PER_TRAINING_STEP:
+            raise VnlError(
+                f"batch_size × num_minibatches × unroll_length × action_repeat is {self.env_steps_per_training_step:,} "
+                f"environment steps per training step (all held in memory), at most {MAX_STEPS_PER_TRAINING_STEP:,}; "
+                "make one of them smaller"
+            )
+        for key in ("learning_rate", "reward_scaling"):
+            if not getattr(self, key) > 0:
+                raise VnlError(f"{key} must be > 0, got {getattr(self, key)}")
+        if self.learning_rate_final is not None and self.learning_rate_final < 0:
+            raise VnlError(f"learning_rate_final must be >= 0 (null: a constant rate), got {self.learning_rate_final}")
+        if self.learning_rate_decay_steps is not None:
+            if self.learning_rate_final is None:
+                raise VnlError("learning_rate_decay_steps needs learning_rate_final (the rate it decays to)")
+            if self.learning_rate_decay_steps < 1:
+                raise VnlError(f"learning_rate_decay_steps must be >= 1, got {self.learning_rate_decay_steps}")
+        if self.desired_kl is not None:
+            if not self.desired_kl > 0:
+                raise VnlError(f"desired_kl must be > 0 (null: no KL-adaptive rate), got {self.desired_kl}")
+            if self.learning_rate_final is not None:
+                raise VnlError("ppo.desired_kl and ppo.learning_rate_final are two learning-rate schedules; set one")
+        if self.entropy_cost < 0:
+            raise VnlError(f"entropy_cost must be >= 0, got {self.entropy_cost}")
+        for key in ("discounting", "gae_lambda", "clipping_epsilon"):
+            if not 0 < getattr(self, key) <= 1:
+                raise VnlError(f"{key} must be in (0, 1], got {getattr(self, key)}")
+        if (self.batch_size * self.num_minibatches) % self.num_envs:
+            raise VnlError(
+                f"batch_size × num_minibatches ({self.batch_size} × {self.num_minibatches} = "
+                f"{self.batch_size * self.num_minibatches}) must be a multiple of num_envs "
+                f"({self.num_envs}); e.g. set num_envs to {self.batch_size} or change batch_size"
+            )
+        if self.episode_length is not None and not 1 <= self.episode_length <= MAX_EPISODE_LENGTH:
+            raise VnlError(f"episode_length must be in 1..{MAX_EPISODE_LENGTH:,}, got {self.episode_length}")
+        if self.max_grad_norm is not None and self.max_grad_norm <= 0:
+            raise VnlError(f"max_grad_norm must be > 0, got {self.max_grad_norm}")
+
+    @property
+    def env_steps_per_training_step(self) -> int:
+        return self.batch_size * self.num_minibatches * self.unroll_length * self.action_repeat
+
+
+@dataclasses.dataclass(frozen=True)
+class NetworkConfig:
+    """Brax's PPO policy and value networks: MLP sizes, and with `vision.enabled` the CNN that
+    encodes each `pixels/` observation before the MLP (Brax's `networks_vision`; NatureCNN by
+    default). `cnn_pool` reduces the last feature map: `avg`/`max` over space (C features),
+    `spatial_softmax` (the expected x, y of each channel: 2C features, keeps *where* things are),
+    `none` (flattened).
+
+    The action distribution: `tanh_normal` (Brax's default) is a Gaussian whose location and
+    scale the policy MLP outputs for each state, squashed by tanh; `normal` is a Gaussian whose
+    location the MLP outputs and whose scale is one learned parameter per action, the same in
+    every state (Brax's `PolicyModuleWithStd`; the env clips actions to the control range), as
+    legged-robot PPO uses. `init_noise_std` is that scale at the start and `noise_std_type` how it
+    is stored (`log`: exp of the parameter, always positive; `scalar`: the parameter itself).
+    Neither applies to `tanh_normal`."""
+
+    policy_hidden_layer_sizes: tuple[int, ...] = (32, 32, 32, 32)
+    value_hidden_layer_sizes: tuple[int, ...] = (256, 256, 256, 256, 256)
+    activation: Literal["swish", "relu", "tanh", "elu"] = "swish"
+    cnn_channels: tuple[int, ...] = (32, 64, 64)
+    cnn_kernel_sizes: tuple[int, ...] = (8, 4, 3)
+    cnn_strides: tuple[int, ...] = (4, 2, 1)
+    cnn_max_pool: bool = False  # a 2x2 max-pool after each convolution
+    cnn_pool: Literal["avg", "max", "spatial_softmax", "none"] = "avg"
+    distribution_type: Literal["tanh_normal", "normal"] = "tanh_normal"
+    noise_std_type: Literal["log", "scalar"] = "log"
+    init_noise_std: float = 1.0
+    # A recurrent core between the encoder and the heads: an LSTM or a GRU of `core_size` units in
+    # the policy and in the value network, each its own (vnl.ppo.recurrent); null: feed-forward
+    # MLPs (docs/how-to/recurrent.md).
+    core: Literal["lstm", "gru"] | None = None
+    core_size: int = 128
+
+    def validate(self) -> None:
+        if not 1 <= self.core_size <= MAX_LAYER:
+            raise VnlError(
+                f"core_size must be in 1..{MAX_LAYER:,} units, got {self.core_size:,}; use a smaller recurrent core"
+            )
+        if not self.init_noise_std > 0:
+            raise VnlError(f"init_noise_std must be > 0, got {self.init_noise_std}")
+        for key, most, what in (
+            ("policy_hidden_layer_sizes", MAX_LAYER, "units"),
+            ("value_hidden_layer_sizes", MAX_LAYER, "units"),
+            ("cnn_channels", 4096, "channels"),
+            ("cnn_kernel_sizes", 512, "pixels (the largest image)"),
+            ("cnn_strides", 512, "pixels (the largest image)"),
+        ):
+            sizes = getattr(self, key)
+            if not sizes or any(s < 1 for s in sizes):
+                raise VnlError(f"{key} must be a non-empty list of positive sizes, got {list(sizes)}")
+            if any(s > most for s in sizes) or len(sizes) > 64:
+                raise VnlError(
+                    f"{key}: at most 64 layers of at most {most:,} {what}, got {list(sizes)[:8]}"
+                    f"{' ...' if len(sizes) > 8 else ''}; use fewer or smaller layers"
+                )
+        n = len(self.cnn_channels)
+        if len(self.cnn_kernel_sizes) != n or len(self.cnn_strides) != n:
+            raise VnlError(
+                f"cnn_channels, cnn_kernel_sizes and cnn_strides need one value per convolution; got "
+                f"{n}, {len(self.cnn_kernel_sizes)} and {len(self.cnn_strides)} values"
+            )
+
+
+class RunSettings(Protocol):
+    """What the PPO loop and its networks read of a run's config (`vnl.train.config.TrainConfig`)."""
+
+    @property
+    def ppo(self) -> PPOConfig: ...
+
+    @property
+    def network(self) -> NetworkConfig: ...
+
+    @property
+    def randomize(self) -> Any: ...
+
+    @property
+    def vision(self) -> Any: ...
+
+    @property
+    def seed(self) -> int: ...
+
+    def episode_length(self) -> int: ...
