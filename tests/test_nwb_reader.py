@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from recordings import exportable, nwb_session  # tests/recordings.py
 
-from vnl import recording
+from vnl import compare, recording
 from vnl.errors import VnlError
 from vnl.neuro import decoding, encoding, pca, states
 from vnl.recording import behaviour, model, nwb, nwb_reader
@@ -142,6 +142,9 @@ def test_vnls_export_reads_back_to_the_recording_it_was_written_from(tmp_path):
     for dim in ("joint", "actuator", "end_effector", "observation_feature"):
         assert [str(v) for v in back[dim].values] == [str(v) for v in ds[dim].values], dim
     assert not {"qpos", "qvel", "body_quat", "body_pos"} & set(back.data_vars)  # not in the export
+    shared, _ = compare.shared_recording([], recording=path)  # `vnl compare RUN RUN --recording rec.nwb`
+    obs, mask = compare.observations(shared)
+    np.testing.assert_allclose(obs[mask], ds["observation"].values[a], rtol=1e-6, atol=1e-6)
     # the analyses take it as they take the NetCDF recording
     assert encoding.encode(back, n_folds=3).features == encoding.encode(ds, n_folds=3).features
     fit = decoding.decode(back, "policy_hidden_1", "forward_speed", n_folds=3, repeats=1)

@@ -2,6 +2,7 @@
 nothing, pynapple reads it) whose spikes follow the tuning it states."""
 
 import numpy as np
+import pytest
 
 from vnl.recording import nwb, synthetic
 
@@ -41,3 +42,17 @@ def test_each_units_spike_count_is_the_integral_of_its_rate(lab_session):
         units = io.read().units
         counts = np.array([len(units["spike_times"][i]) for i in range(len(units))])
     assert (np.abs(counts - expected) < 5 * np.sqrt(expected)).all()  # Poisson
+
+
+def test_the_script_writes_another_animal_per_seed(tmp_path, lab_session, capsys):
+    from pynwb import NWBHDF5IO
+
+    _, truth = lab_session
+    assert synthetic.main([str(tmp_path / "other.nwb"), "--seed", "1"]) == 0
+    assert "30 units (24 tuned to position), 8 trials" in capsys.readouterr().out
+    with NWBHDF5IO(str(tmp_path / "other.nwb"), "r") as io:
+        directions = io.read().units["preferred_direction"][:]
+    assert not np.allclose(directions, truth["preferred_direction"])
+    with pytest.raises(SystemExit):
+        synthetic.main([str(tmp_path / "other.txt")])
+    assert not (tmp_path / "other.txt").exists()

@@ -133,10 +133,14 @@ def on_conditions(
     per = [condition_means(r, x, e) for r, x in zip(recs, v, strict=True)]
     keep = np.all([counts >= MIN_STEPS for _, counts in per], axis=0)
     if keep.sum() < MIN_CONDITIONS:
+        short = "; ".join(
+            f"{r.name}: {' '.join(map(str, counts))}" for r, (_, counts) in zip(recs, per, strict=True)
+            if (counts < MIN_STEPS).any()
+        )  # fmt: skip
         raise VnlError(
             f"only {int(keep.sum())} of {bins} conditions ({e[0]:.3g} to {e[-1]:.3g}) have {MIN_STEPS} steps or "
-            f"more in every recording; {MIN_CONDITIONS} at least are needed: use fewer --condition-bins or longer "
-            "recordings"
+            f"more in every recording (steps per condition, {short}); {MIN_CONDITIONS} at least are needed: use "
+            "fewer --condition-bins or recordings that cover the range longer"
         )
     nets = [
         compare.Network(r.name, r.path, int(r.ds.attrs.get("checkpoint_step", 0)), f"recording:{r.path}",

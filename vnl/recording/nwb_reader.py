@@ -412,13 +412,21 @@ def _assemble(
         "episodes": phrase,
         "behaviour": json.dumps(names),
         "reading": (
-            f"{path.name}: {', '.join(f'{n} ({_count(data[n])} units)' for n in layers)}; "
-            f"behaviour: {', '.join(names)}; {phrase}; bins of {width:g} s ({source}) "
+            f"{path.name}: {', '.join(_units(n, data[n]) for n in layers)}; "
+            f"behaviour: {_listed(names)}; {phrase}; bins of {width:g} s ({source}) "
             f"centred on the samples of {ref.path}"
         ),
     }
     return xr.Dataset(data, coords=coords, attrs=attrs)
 
 
-def _count(variable: tuple) -> int:
-    return int(variable[1].shape[-1])
+def _listed(names: list[str], most: int = 8) -> str:
+    """Names for a line: the first `most`, then how many more (`vnl.recording.behaviour.available`
+    lists them all)."""
+    return ", ".join(names) if len(names) <= most else f"{', '.join(names[:most])} and {len(names) - most} more"
+
+
+def _units(name: str, variable: tuple) -> str:
+    """`units (30 units)`: a layer and its number of units."""
+    n = int(variable[1].shape[-1])
+    return f"{name} ({n} unit{'' if n == 1 else 's'})"

@@ -2,8 +2,9 @@
 vnl's analyses of a lab's NWB can be checked against the truth (the tests and
 docs/how-to/your-nwb.md use it; no real data ships with vnl).
 
-`python -m vnl.recording.synthetic lab.nwb` writes one. The session, written with pynwb and
-ndx-pose the way a lab's pipeline writes one:
+`python -m vnl.recording.synthetic lab.nwb [--seed N]` writes one (another seed: another
+animal, other preferred directions). The session, written with pynwb and ndx-pose the way a lab's
+pipeline writes one:
 
 - the animal's pose: ndx-pose `PoseEstimation` of two keypoints, `snout` and `tail_base` (x, y in
   metres, a 1 m arena, 50 Hz), with their `Skeleton`; the snout wanders smoothly, the body 0.1 m
@@ -188,8 +189,20 @@ def _units(nwb: Any, trains: list[np.ndarray], truth: dict[str, np.ndarray], obs
         nwb.add_unit(spike_times=train, obs_intervals=[observed], **{k: float(v[i]) for k, v in truth.items()})
 
 
+def main(argv: list[str]) -> int:
+    """`python -m vnl.recording.synthetic OUT.nwb [--seed N]`."""
+    import argparse
+
+    parser = argparse.ArgumentParser(prog="python -m vnl.recording.synthetic", description=__doc__.split("\n")[0])
+    parser.add_argument("out", help="the NWB file to write (.nwb)")
+    parser.add_argument("--seed", type=int, default=0, help="another seed, another animal (default 0)")
+    args = parser.parse_args(argv)
+    if not args.out.endswith(".nwb"):
+        parser.error("the file name must end in .nwb")
+    truth = write_session(args.out, seed=args.seed)
+    print(f"wrote {args.out}: {len(truth['gain'])} units ({int(truth['tuned'].sum())} tuned to position), 8 trials")
+    return 0
+
+
 if __name__ == "__main__":
-    if len(sys.argv) != 2 or not sys.argv[1].endswith(".nwb"):
-        sys.exit("usage: python -m vnl.recording.synthetic OUT.nwb")
-    truth = write_session(sys.argv[1])
-    print(f"wrote {sys.argv[1]}: {len(truth['gain'])} units ({int(truth['tuned'].sum())} tuned), 8 trials")
+    sys.exit(main(sys.argv[1:]))
