@@ -64,3 +64,13 @@ def rat_recording(tmp_path_factory):
     path = netcdf.write(ds, run.run_dir / "record.nc")
     out = nwb.write(ds, run.run_dir / "record.nwb", config="env: rodent_run_gaps\n", command="test")
     return run, ds, path, out
+
+
+@pytest.fixture(scope="session")
+def lab_session(tmp_path_factory):
+    """A synthetic lab session (`vnl.recording.synthetic`): 30 units, 24 with a known linear
+    tuning to the snout's position, 8 trials of 20 s, as NWB; (path, truth). About a second."""
+    from vnl.recording import synthetic
+
+    path = tmp_path_factory.mktemp("lab") / "lab.nwb"
+    return path, synthetic.write_session(path)

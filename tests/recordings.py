@@ -82,3 +82,83 @@ def oscillator(rng, d=6, radius=0.97):
         a[2 * i : 2 * i + 2, 2 * i : 2 * i + 2] = radius * rotation(rng.uniform(0.05, 0.5))
     q = ortho_group.rvs(d, random_state=int(rng.integers(1 << 30)))
     return q @ a @ q.T
+
+
+def exportable(seed=0):
+    """`synthetic` with what the NWB export writes beside the layers and behaviour (observation,
+    action, the body's pose, the centre of mass, feet, gait phase): a recording-shaped dataset that
+    `vnl.recording.nwb.write` takes, with episodes of different lengths."""
+    ds = synthetic(seed)
+    rng = np.random.default_rng(seed + 1)
+    e, t = ds.sizes["episode"], ds.sizes["time"]
+    ds["active"][1, -35:] = 0
+    et = ("episode", "time")
+    ds["observation"] = (et + ("observation_feature",), rng.normal(size=(e, t, 5)))
+    ds["action"] = (et + ("actuator",), rng.uniform(-1, 1, size=(e, t, 3)))
+    ds["body_pos"] = (et + ("body", "xyz"), ar1(rng, (e, t, 3, 3)))
+    ds["com_velocity"] = (et + ("xyz",), ar1(rng, (e, t, 3)))
+    ds["foot_contact"] = (et + ("end_effector",), (rng.random((e, t, 2)) < 0.5).astype(np.int8))
+    ds["gait_phase"] = (et, np.where(rng.random((e, t)) < 0.1, np.nan, rng.random((e, t))))
+    ds["walker_body"] = (("body",), np.array([0, 1, 1], np.int8))
+    ds["body_parent"] = (("body",), np.array([0, 0, 1]))
+    return ds.assign_coords(
+        observation_feature=[f"obs[{i}]" for i in range(5)],
+        actuator=[f"walker/a{i}" for i in range(3)],
+        body=["world", "walker/torso", "walker/foot"],
+        xyz=["x", "y", "z"],
+        end_effector=["walker/foot_L", "walker/foot_R"],
+    ).assign_attrs(run_dir="/nowhere/run", env="synthetic", seed=0, walker="rodent")
+
+
+def nwb_session(
+    path,
+    units="spikes",
+    behaviour=True,
+    trials=True,
+    spike_offset=0.0,
+    pose_timestamps=False,
+    seed=0,
+):
+    """A small lab NWB file (pynwb, ndx-pose): 40 s of a 2-D keypoint `nose` at 50 Hz (rate, or
+    jittered `pose_timestamps`), a `speed` series, 4 trials of 8 s, and units: 6 units whose rate
+    follows nose x (`units="spikes"`), a units table without spikes (`"empty"`), without a
+    spike_times column (`"no_column"`), rates in processing/ecephys (`"rates"`) or none (None);
+    spike times shifted by `spike_offset` s (another clock)."""
+    from datetime import UTC, datetime
+
+    from ndx_pose import PoseEstimation, PoseEstimationSeries
+    from pynwb import NWBHDF5IO, NWBFile, TimeSeries
+    from pynwb.behavior import BehavioralTimeSeries
+
+    rng = np.random.default_rng(seed)
+    n, rate = 2000, 50.0
+    t = np.arange(n) / rate
+    nose = 0.5 + 0.4 * ar1(rng, (1, n, 2), rho=0.99)[0]
+    start = datetime(2026, 1, 1, tzinfo=UTC)
+    f = NWBFile(session_description="a session", identifier=f"s{seed}", session_start_time=start)
+    if behaviour:
+        module = f.create_processing_module("behavior", "behaviour")
+        clock = {"timestamps": t + rng.uniform(-0.002, 0.002, n)} if pose_timestamps else {"rate": rate}
+        series = PoseEstimationSeries(
+            name="nose", data=nose, unit="m", reference_frame="arena", confidence=np.ones(n), **clock
+        )
+        module.add(PoseEstimation(name="PoseEstimation", pose_estimation_series=[series], description="pose"))
+        speed = TimeSeries(name="speed", data=np.abs(np.gradient(nose[:, 0])) * rate, unit="m/s", rate=rate)
+        module.add(BehavioralTimeSeries(name="BehavioralTimeSeries", time_series=[speed]))
+    if trials:
+        for i in range(4):
+            f.add_trial(start_time=10.0 * i, stop_time=10.0 * i + 8.0)
+    lam = 5 + 30 * nose[:, 0]  # spikes/s
+    if units in ("spikes", "empty"):
+        for _ in range(6):
+            hit = rng.random(n) < lam / rate
+            f.add_unit(spike_times=(t[hit] + spike_offset) if units == "spikes" else [])
+    elif units == "no_column":
+        f.add_unit_column("quality", "a unit's quality")
+        f.add_unit(quality="good")
+    elif units == "rates":
+        ecephys = f.create_processing_module("ecephys", "rates")
+        ecephys.add(TimeSeries(name="rates", data=np.stack([lam, 2 * lam], axis=1), unit="Hz", rate=rate))
+    with NWBHDF5IO(str(path), "w") as io:
+        io.write(f)
+    return path

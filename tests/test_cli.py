@@ -16,8 +16,8 @@ from vnl import cli
 from vnl.io import checkpoint
 from vnl.io import metrics as metrics_io
 from vnl.io.video import read_mp4
-from vnl.train.config import read_config
 from vnl.ppo.loop import epoch_length
+from vnl.train.config import read_config
 
 pytestmark = pytest.mark.xdist_group("cli")
 

@@ -32,6 +32,7 @@ NUMBERS = {
     "--episode": (["view"], 0),
     "--units": (["view"], 0),
     "--max-samples": (["compare"], 1),
+    "--condition-bins": (["compare"], 2),
     "--num-envs": (["train"], 1),
     "--from-step": (["train"], 0),
     "--num-processes": (["train"], 1),
@@ -639,7 +640,7 @@ def test_generated_fuzz_of_values_shapes_files_and_outputs(tmp_path):
 # refused by the CLI's checks, before JAX, with its reason.
 
 FOREIGN = [  # file in the sandbox, the reason in the error line
-    ("session.nwb", "an nwb file (nwb 2."),
+    ("session.nwb", "an nwb file"),  # no units: analyze reads it and says so; view and record --from refuse NWB
     ("SESSION.NWB", "an nwb file"),
     ("lab.nc", "an nwb file"),
     ("nwb_link.nc", "an nwb file"),
@@ -687,6 +688,72 @@ def _recording_fixtures(root: Path) -> None:
         "dir_link.rrd": "a_dir",
     }.items():
         (root / link).symlink_to(target)
+    _lab_nwb_fixtures(root)
+
+
+LAB_FILES = {  # a lab's NWB file that vnl's analyses cannot use -> tests/recordings.nwb_session's arguments, reason
+    "lab_no_units.nwb": ({"units": None}, "no units (no units table"),
+    "lab_no_spikes.nwb": ({"units": "empty"}, "holds no spikes"),
+    "lab_no_spike_times.nwb": ({"units": "no_column"}, "has no spike_times column"),
+    "lab_no_behaviour.nwb": ({"behaviour": False}, "with no behaviour"),
+    "lab_other_clock.nwb": ({"spike_offset": 1000.0}, "do not overlap; are they on one clock?"),
+}
+
+
+def _lab_nwb_fixtures(root: Path) -> None:
+    """A lab's NWB files: a good one (lab.nwb: units, pose, speed, trials) and those of LAB_FILES."""
+    from recordings import nwb_session  # tests/recordings.py
+
+    nwb_session(root / "lab.nwb")
+    for name, (kwargs, _) in LAB_FILES.items():
+        nwb_session(root / name, **kwargs)
+
+
+def lab_nwb_cases() -> list[Case]:
+    """A lab's NWB file given to analyze and compare (issue 52): each refused with its reason, by
+    the reader or the CLI's checks, before JAX."""
+    cases = []
+    for name, (_, expect) in LAB_FILES.items():
+        cases += [
+            Case("lab NWB", ["analyze", name], expect),
+            Case("lab NWB", ["analyze", name, "--method", "decoding", "--target", "speed"], expect),
+            Case("lab NWB", ["compare", name, "lab.nwb", "--conditions", "speed"], expect),
+            Case("lab NWB", ["compare", "lab.nwb", name, "--measure", "dsa"], expect),
+        ]
+    for argv, expect in (
+        (["analyze", "lab.nwb", "--method", "decoding"], "no target 'forward_speed' in the recording; its behaviour"),
+        (["analyze", "lab.nwb", "--method", "decoding", "--target", "nose[z]"], "no target 'nose[z]'"),
+        (["analyze", "lab.nwb", "--method", "encoding", "--features", "snout"], "has no snout: choose others"),
+        (["analyze", "lab.nwb", "--intervals", "nope"], "no intervals table 'nope'"),
+        (["analyze", "lab.nwb", "--bin", "0"], "argument --bin: must be above 0"),
+        (["analyze", "lab.nwb", "--bin", "-0.02"], "argument --bin: must be above 0"),
+        (["analyze", "lab.nwb", "--bin", "nan"], "argument --bin: must be above 0"),
+        (["analyze", "lab.nwb", "--bin", "1e9"], "argument --bin: must be above 0"),
+        (["analyze", "lab.nwb", "--bin", "abc"], "argument --bin: expected a number of seconds"),
+        (["analyze", "lab.nwb", "--bin", "30", "--method", "decoding", "--target", "speed"], "a smaller --bin"),
+        (["analyze", "rec.nc", "--bin", "0.02"], "--bin read an nwb file's times"),
+        (["analyze", "rec.nc", "--intervals", "trials"], "--intervals read an nwb file's times"),
+        (["compare", "lab.nwb", "rec.nc"], "--conditions variable"),
+        (["compare", "lab.nwb", "run", "--conditions", "speed"], "is a run directory"),
+        (["compare", "lab.nwb", "rec.nc", "--measure", "dsa", "--conditions", "speed"], "leave --conditions out"),
+        (["compare", "lab.nwb", "rec.nc", "--conditions", "speed", "--recording", "rec.nc"], "leave --recording"),
+        (["compare", "lab.nwb", "rec.nc", "--conditions", "nope"], "no target 'nope'"),
+        (["compare", "lab.nwb", "lab.nwb", "--conditions", "nose"], "nose has 2 columns"),
+        (["compare", "lab.nwb", "lab.nwb", "--conditions", "speed,speed,speed"], "names 3 variables"),
+        (["compare", "lab.nwb", "rec.nc", "--conditions", "speed,reward"], "do not overlap"),
+        (["compare", "lab.nwb", "rec.nc", "--measure", "dsa"], "read the nwb files with --bin 0.1"),
+        (
+            ["compare", "lab.nwb", "lab.nwb", "--conditions", "speed", "--condition-bins", "1"],
+            "--condition-bins: must be",
+        ),
+        (["compare", "run", "run", "--recording", "lab.nwb"], "holds no observations"),
+        (["compare", "run", "run", "--bin", "0.1"], "--bin and --intervals read nwb files"),
+        (["compare", "rec.nc", "rec.nc", "--conditions", "reward", "--bin", "0.1"], "none of the recordings is an nwb"),
+        (["view", "lab.nwb"], "`vnl analyze` and `vnl compare` read nwb files"),
+        (["record", "--from", "lab.nwb"], "`vnl analyze` and `vnl compare` read nwb files"),
+    ):
+        cases.append(Case("lab NWB", argv, expect))
+    return cases
 
 
 def recording_cases(ro: Path) -> list[Case]:
@@ -739,13 +806,14 @@ def recording_cases(ro: Path) -> list[Case]:
 
 def test_generated_fuzz_of_recording_inputs_and_outputs(tmp_path):
     """Every input and output of record, analyze, compare and view (issue 53): foreign HDF5, NWB,
-    links, directories; each refused before JAX with its reason, nothing changed."""
+    links, directories; a lab's NWB files the analyses cannot use and the flags that read them
+    (issue 52); each refused before JAX with its reason, nothing changed."""
 
     def make_cases(ro: Path) -> list[Case]:
         _recording_fixtures(tmp_path / "template")
-        return recording_cases(ro)
+        return recording_cases(ro) + lab_nwb_cases()
 
-    _run_all(tmp_path, make_cases, 100)
+    _run_all(tmp_path, make_cases, 150)
 
 
 def test_generated_fuzz_of_links_and_odd_inputs(tmp_path):

@@ -45,3 +45,15 @@ def test_r2_is_the_coefficient_of_determination():
     expected = 1 - ((y - pred) ** 2).sum(0) / ((y - y.mean(0)) ** 2).sum(0)
     np.testing.assert_allclose(crossval.r2(y, pred), expected)
     assert np.isnan(crossval.r2(np.ones((5, 1)), np.ones((5, 1))))[0]
+
+
+def test_ridge_weights_are_each_outputs_tuning_in_the_features_own_units():
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(600, 3)) * [1.0, 100.0, 0.01]  # features on very different scales
+    w = np.array([[2.0, 0.03, -50.0], [0.0, 0.0, 0.0]])  # (outputs, features); output 1 is noise
+    y = x @ w.T + 0.1 * rng.normal(size=(600, 2))
+    episode = np.repeat(np.arange(6), 100)
+    got = crossval.ridge_weights(x, y, episode, 5)
+    assert got.shape == (2, 3)
+    np.testing.assert_allclose(got[0], w[0], rtol=0.02)
+    assert np.abs(got[1] * x.std(0)).max() < 0.02  # noise: its fitted effect is near 0, the penalty chosen large

@@ -32,15 +32,30 @@ def test_decoding_targets_and_errors():
     y, labels = behaviour.target(ds, "gait_phase")
     assert labels == ["cos(gait_phase)", "sin(gait_phase)"]
     np.testing.assert_allclose(y[0, 3], [np.cos(0.6 * np.pi), np.sin(0.6 * np.pi)])
-    with pytest.raises(VnlError, match="no target 'nope'"):
+    y, labels = behaviour.target(ds, "joint_angle[walker/j3]")  # one column of a variable, by its label
+    assert labels == ["joint_angle[walker/j3]"]
+    np.testing.assert_array_equal(y[..., 0], ds["joint_angle"].values[..., 3])
+    with pytest.raises(
+        VnlError, match=r"no target 'nope' .* behaviour variables: joint_angle, joint_velocity, forward"
+    ):
         decoding.decode(ds, "policy_hidden_0", "nope")
+    for name in ("policy_hidden_0", "joint_angle[walker/j9]"):  # a layer is not a target; no such column
+        with pytest.raises(VnlError, match="no target"):
+            behaviour.target(ds, name)
     with pytest.raises(VnlError, match="no joint 'knee'"):
         behaviour.target(ds, "joint:knee")
     with pytest.raises(VnlError, match="no layer"):
         decoding.decode(ds, "policy_hidden_9")
     with pytest.raises(VnlError, match="at least 2 episodes"):
         decoding.decode(ds.isel(episode=[1]), "policy_hidden_1")
-    assert model.last_hidden_layer(ds) == "policy_hidden_1"
+    assert model.last_hidden_layer(ds) == "policy_hidden_1" == model.default_layer(ds)
+    lab = ds.drop_vars(["policy_hidden_0", "policy_hidden_1"]).assign(units=ds["policy_hidden_1"])
+    assert model.default_layer(lab) == "units"  # a lab's units, read from an NWB file
+    name = decoding.output_name(decoding.Options(target="snout[x]"))
+    assert (
+        name == "decoding_snout_x"
+        and decoding.output_name(decoding.Options(target="joint:hip_L")) == "decoding_joint_hip_L"
+    )
 
 
 def test_a_constant_target_is_refused_not_scored_nan(tmp_path, capsys):

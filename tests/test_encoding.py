@@ -22,6 +22,11 @@ def test_encoding_finds_the_planted_unit_and_nothing_else(tmp_path):
     assert out.stat().st_size > 5000
     doc = json.loads(json.dumps(result.to_json()))
     assert doc["layers"]["policy_hidden_0"]["r2"][0] == pytest.approx(r2[0])
+    # the tuning: unit 0 is 2 x joint angle 1 (+ 0.5), per radian; the noise units weigh little
+    weights = result.weights["policy_hidden_0"]
+    assert weights.shape == (8, 4) and weights[0, 1] == pytest.approx(2.0, rel=0.01)
+    assert np.abs(np.delete(weights[0], 1)).max() < 0.02
+    assert doc["layers"]["policy_hidden_0"]["weights"][0][1] == pytest.approx(2.0, rel=0.01)
 
 
 def test_layers_whose_every_unit_is_constant_are_refused():

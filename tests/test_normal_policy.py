@@ -13,10 +13,10 @@ from vnl.errors import VnlError
 from vnl.io import checkpoint
 from vnl.io import metrics as metrics_io
 from vnl.policy import load_run, make_policy_fn
-from vnl.train import config as train_config
-from vnl.train import trainer, warm_start
 from vnl.ppo.loop import PPOLoop
 from vnl.ppo.networks import make_network
+from vnl.train import config as train_config
+from vnl.train import trainer, warm_start
 
 pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("normal_policy"), pytest.mark.usefixtures("point_envs")]
 

@@ -65,3 +65,23 @@ def test_pynapple_opens_the_file_and_computes_a_tuning_curve(rat_recording):
     unit0, v = activity.values[:, 0], speed.values
     inside = (v >= edges[3]) & (v < edges[4])
     assert tc.values[0, 3] == pytest.approx(unit0[inside].mean(), rel=1e-5)
+
+
+def test_the_export_reads_back_for_the_analyses(rat_recording):
+    """What vnl's export carries comes back as the recording's variables (float32 in the file);
+    what it does not carry (qpos, qvel, body orientations, metrics) is absent, not invented."""
+    from vnl import recording
+    from vnl.neuro import decoding, encoding
+    from vnl.recording import behaviour, model
+
+    _, ds, _, path = rat_recording
+    back = recording.read(path)
+    a, b = ds["active"].values > 0, back["active"].values > 0
+    assert a.sum(1).tolist() == b.sum(1).tolist() and model.layers(back) == model.layers(ds)
+    for name in (*model.layers(ds), *behaviour.ENCODING_FEATURES, "gait_phase", "gap_distance", "reward", "action"):
+        np.testing.assert_allclose(back[name].values[b], ds[name].values[a], rtol=1e-5, atol=1e-5, err_msg=name)
+    assert not {"qpos", "qvel", "body_quat", "x_velocity"} & set(back.data_vars)
+    assert back.attrs["checkpoint_step"] == 0 and back.attrs["env"] == "rodent_run_gaps"
+    assert encoding.encode(back, n_folds=3).features == encoding.encode(ds, n_folds=3).features
+    mine = decoding.decode(back, target="gap_distance", n_folds=3, repeats=1)
+    assert mine.r2 == pytest.approx(decoding.decode(ds, target="gap_distance", n_folds=3, repeats=1).r2, abs=1e-3)

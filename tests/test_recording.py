@@ -1,5 +1,6 @@
 """vnl.recording: files told apart by their content, never their suffix; every other file given
-where a recording is read is one line naming what it is and what the command wants."""
+where a recording is read is one line naming what it is and what the command wants. NWB files are
+read by `vnl analyze` and `vnl compare` (tests/test_nwb_reader.py), not by `view` or `record --from`."""
 
 from datetime import UTC, datetime
 
@@ -71,11 +72,19 @@ def test_identify_tells_each_kind_by_its_content(files, name, kind, words):
     assert found.kind == kind and words in found.what, found
 
 
-@pytest.mark.parametrize("name, kind, words", [k for k in KINDS if k[1] not in ("recording", "missing")])
+@pytest.mark.parametrize("name, kind, words", [k for k in KINDS if k[1] not in ("recording", "missing", "nwb")])
 def test_read_refuses_every_other_kind_naming_it_and_what_it_wants(files, name, kind, words):
     with pytest.raises(VnlError) as e:
         recording.read(files / name)
     assert words in str(e.value) and "this command reads a vnl recording (NetCDF" in str(e.value)
+
+
+@pytest.mark.parametrize("name", ["session.NWB", "lab.nc"])
+def test_an_nwb_file_is_read_by_the_nwb_reader_or_refused_where_netcdf_is_needed(files, name):
+    with pytest.raises(VnlError, match=r"is an NWB file \(NWB 2\..*`vnl analyze` and `vnl compare` read NWB files"):
+        recording.read(files / name, kinds=formats.NETCDF_ONLY)
+    with pytest.raises(VnlError, match="is an NWB file with no units"):  # its lfp is no unit (tests/test_nwb_reader.py)
+        recording.read(files / name)
 
 
 def test_a_recording_is_read_whatever_its_suffix(files):

@@ -21,10 +21,10 @@ from vnl.envs.wrappers import wrap_for_training
 from vnl.io import checkpoint
 from vnl.io import metrics as metrics_io
 from vnl.policy import RecurrentPolicy, load_policy
-from vnl.train import config as train_config
-from vnl.train import trainer
 from vnl.ppo.recurrent import make_recurrent_networks
 from vnl.ppo.recurrent_ppo import actor_step, recurrent_ppo_loss, zero_carry
+from vnl.train import config as train_config
+from vnl.train import trainer
 
 pytestmark = [pytest.mark.xdist_group("recurrent"), pytest.mark.usefixtures("point_envs")]
 

@@ -23,9 +23,9 @@ from vnl.errors import VnlError
 from vnl.io import checkpoint, plot, tracking
 from vnl.io import metrics as metrics_io
 from vnl.policy import load_run
+from vnl.ppo.loop import PPOLoop
 from vnl.train import config as train_config
 from vnl.train import trainer
-from vnl.ppo.loop import PPOLoop
 
 pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("research"), pytest.mark.usefixtures("point_envs")]
 

@@ -24,10 +24,10 @@ from vnl.envs.wrappers import wrap_for_training
 from vnl.errors import VnlError
 from vnl.io import checkpoint
 from vnl.io import metrics as metrics_io
+from vnl.ppo.loop import PPOLoop
 from vnl.train import config as train_config
 from vnl.train import rundir, trainer
 from vnl.train.config import read_config
-from vnl.ppo.loop import PPOLoop
 
 pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("robustness"), pytest.mark.usefixtures("point_envs")]
 

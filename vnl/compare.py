@@ -58,7 +58,7 @@ class Comparison:
       pairs: (i, j) -> matrix (layers of i, layers of j) of similarities.
       measure: its name (`vnl.neuro.registry.MEASURES`); label: what the numbers are;
       options: the measure's options; samples: n steps compared; source: where the
-      observations came from.
+      observations came from; details: more for the JSON (`vnl.compare_recorded`: the conditions).
     """
 
     networks: list[Network]
@@ -68,6 +68,7 @@ class Comparison:
     options: registry.Options
     samples: int
     source: str
+    details: dict[str, Any] = dataclasses.field(default_factory=dict)
 
     def layer_names(self, i: int) -> list[str]:
         return list(self.networks[i].layers)
@@ -101,6 +102,7 @@ class Comparison:
                 }
                 for (i, j), m in self.pairs.items()
             ],
+            **self.details,
         }
 
 
@@ -134,7 +136,7 @@ def compare(
 def table(result: Comparison) -> str:
     """The comparison as text: for each pair, a layers × layers table; then, per layer name
     shared by all networks, the same-layer similarity of every pair (across-seed pairs marked)."""
-    lines = [f"{result.label} on {result.samples:,} steps of {result.source}"]
+    lines = [f"{result.label} on {_what(result)}"]
     for (i, j), m in result.pairs.items():
         a, b = result.networks[i], result.networks[j]
         seeds = "  (same model, other seed)" if result.same_seed_group(i, j) else ""
@@ -155,6 +157,11 @@ def table(result: Comparison) -> str:
             values = [m[result.layer_names(p[0]).index(n), result.layer_names(p[1]).index(n)] for n in shared]
             lines.append(f"{label[p] + tag:<{width}}" + "".join(f" {v:>16.3f}" for v in values))
     return "\n".join(lines)
+
+
+def _what(result: Comparison) -> str:
+    """What was compared, for a table's or a figure's title: the steps, or the conditions."""
+    return result.source if "conditions" in result.details else f"{result.samples:,} steps of {result.source}"
 
 
 def heatmap(result: Comparison, out: str | Path) -> Path:
@@ -184,7 +191,7 @@ def heatmap(result: Comparison, out: str | Path) -> Path:
         fig.colorbar(image, ax=ax, fraction=0.046, label=label)
     for ax in axes.flat[len(pairs) :]:
         ax.axis("off")
-    fig.suptitle(f"{label} on {result.samples:,} steps of {result.source}", fontsize=10)
+    fig.suptitle(f"{label} on {_what(result)}", fontsize=10)
     fig.tight_layout()
     out = Path(out)
     durable.write_atomic(out, writer=lambda tmp: fig.savefig(tmp, dpi=100))

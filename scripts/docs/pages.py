@@ -171,6 +171,8 @@ def covered(obj: Any, docs: list[Any]) -> bool:
 
 # --- shell examples: each run directory made before it is used ----------------------------------
 INPUT_FLAGS = {"--resume", "--init-from", "--recording", "--from"}
+SYNTHETIC = "vnl.recording.synthetic"
+"""`python -m vnl.recording.synthetic FILE.nwb` writes a lab session to FILE.nwb (docs/how-to/your-nwb.md)."""
 PLACEHOLDER = re.compile(r"^[A-Z][A-Z0-9_]*(\.\w+)?$|[<>|\[\]$*]|\.\.\.")  # RUN_DIR, RECORD.nc, <run>, A|B, $x, ...
 
 
@@ -189,6 +191,8 @@ def shell_commands(block: str) -> Iterator[list[str]]:
                 words = words[1:]
             if words and words[0].endswith("vnl") and words[0].split("/")[-1] == "vnl":
                 yield words
+            elif words[:3] and words[0].split("/")[-1].startswith("python") and words[1:3] == ["-m", SYNTHETIC]:
+                yield ["vnl", SYNTHETIC, *words[3:]]  # it makes the file it names
 
 
 def _values(words: list[str]) -> tuple[list[str], dict[str, str]]:
@@ -252,6 +256,8 @@ def missing_inputs(markdown: str) -> list[str]:
             for r in reads:
                 if not any(r == m or r.startswith(m + "/") for m in made):
                     faults.append(f"`{' '.join(words)}` reads {r}, which no earlier example made")
+            if command == SYNTHETIC and positional:
+                made.add(positional[0])
             if command == "train" and flags.get("--out"):
                 made.add(flags["--out"].rstrip("/"))
             if command == "train" and flags.get("--resume"):

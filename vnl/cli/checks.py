@@ -60,14 +60,29 @@ def input_file(path: str, what: str) -> None:
         raise VnlError(f"cannot read {what} {path} (permission denied)")
 
 
-def recording(path: str, what: str = "recording", wants: str | None = None) -> None:
-    """A recording: an input file (`input_file`) that a reader of `vnl.recording` reads, told by
-    its content (an NWB file, another HDF5 or NetCDF file, a run's config: one line naming it and
-    what the command `wants`)."""
+def recording(
+    path: str, what: str = "recording", wants: str | None = None, kinds: tuple[str, ...] | None = None
+) -> None:
+    """A recording: an input file (`input_file`) that a reader of `vnl.recording` of one of `kinds`
+    (default: every kind) reads, told by its content (an NWB file, another HDF5 or NetCDF file, a
+    run's config: one line naming it and what the command `wants`)."""
     from vnl.recording import formats
 
     input_file(path, what)
-    formats.readable(path, wants or formats.RECORDING)
+    formats.readable(path, wants or formats.RECORDING, kinds)
+
+
+def nwb_options(path: str, bin: float | None, intervals: str | None) -> None:
+    """`--bin` and `--intervals` are for NWB files only: a vnl recording is on its control steps
+    and episodes already."""
+    from vnl.recording import formats
+
+    given = [flag for flag, value in (("--bin", bin), ("--intervals", intervals)) if value is not None]
+    if given and formats.identify(path).kind != "nwb":
+        raise VnlError(
+            f"{' and '.join(given)} read an NWB file's times; {path} is {formats.identify(path).what}, "
+            "already on its control steps and episodes"
+        )
 
 
 def beside(path: str | Path, name: str) -> Path:

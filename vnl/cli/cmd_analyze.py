@@ -1,5 +1,6 @@
 """`vnl analyze RECORDING`: one of the analyses of `vnl.neuro.registry.ANALYSES` (PCA over time,
-encoding, decoding, behavioural states) of a recording, each a PNG and a JSON file."""
+encoding, decoding, behavioural states) of a recording (vnl's NetCDF, or an NWB file: vnl's export
+or a lab's session with units and behaviour), each a PNG and a JSON file."""
 
 from __future__ import annotations
 
@@ -8,9 +9,10 @@ from pathlib import Path
 from typing import Any
 
 from vnl import durable
-from vnl.cli import checks, options
+from vnl.cli import checks, options, process
 from vnl.errors import VnlError
 from vnl.neuro import registry
+from vnl.recording import formats
 
 
 def add(sub: Any) -> None:
@@ -18,7 +20,9 @@ def add(sub: Any) -> None:
         sub, "analyze", "PCA, encoding, decoding or behavioural states of a recording, as PNG + JSON", run, check,
         mujoco=False,
     )  # fmt: skip
-    p.add_argument("recording", help="a recording written by `vnl record` (NetCDF)")
+    p.add_argument(
+        "recording", help="a recording written by `vnl record` (NetCDF), or an NWB file with units and behaviour"
+    )
     methods = "; ".join(f"{name}: {text}" for name, (_, text) in registry.ANALYSES.items())
     p.add_argument(
         "--method",
@@ -32,11 +36,12 @@ def add(sub: Any) -> None:
     p.add_argument(
         "--target",
         default="forward_speed",
-        help="decoding: forward_speed, gait_phase, gap_distance, joint:<joint name> or any per-step variable "
-        "(default: forward_speed)",
+        help="decoding: forward_speed, gait_phase, gap_distance, joint:<joint name>, any per-step variable "
+        "(an NWB file's behaviour: snout, speed, ...) or one column of one (snout[x]) (default: forward_speed)",
     )
-    p.add_argument("--features", help="encoding: comma-separated behaviour variables (default: joint_angle,"
-                   "joint_velocity,com_velocity,forward_speed,foot_contact)")  # fmt: skip
+    p.add_argument("--features", help="encoding and states: comma-separated behaviour variables (encoding's "
+                   "default: joint_angle,joint_velocity,com_velocity,forward_speed,foot_contact; an NWB file's: "
+                   "all its behaviour)")  # fmt: skip
     p.add_argument("--states", type=options.integer(2, 20), default=4, help="states: how many (default 4)")
     p.add_argument("--segmentation", choices=("hmm", "kmeans"), default="hmm",
                    help="states: a sticky Gaussian HMM (default) or k-means")  # fmt: skip
@@ -46,6 +51,7 @@ def add(sub: Any) -> None:
     p.add_argument("--folds", type=options.integer(2), default=5, help="cross-validation folds, by episode (default 5)")
     p.add_argument("--seed", type=options.SEED, default=0, help="seed of the control")
     p.add_argument("--out", help="PNG path (default next to the recording; the JSON beside it)")
+    options.nwb_flags(p)
 
 
 def method_options(args: argparse.Namespace) -> registry.Options:
@@ -63,7 +69,8 @@ def check(args: argparse.Namespace) -> None:
         raise VnlError("--color colours the PCA; use it with --method pca")
     # the default PCA layer's name is read from the recording: its folder is checked now
     _check_outputs(args, args.out or default_out(args))
-    checks.recording(args.recording)  # by its content: an NWB file, another HDF5 file, ...
+    checks.recording(args.recording, wants=formats.ANALYSABLE)  # by its content: NWB, another HDF5 file, ...
+    checks.nwb_options(args.recording, args.bin, args.intervals)
 
 
 def default_out(args: argparse.Namespace, ds: Any = None) -> str:
@@ -82,7 +89,9 @@ def _check_outputs(args: argparse.Namespace, out: str | Path) -> None:
 def run(args: argparse.Namespace) -> int:
     from vnl import recording
 
-    ds = recording.read(args.recording)
+    ds = recording.read(args.recording, formats.ANALYSABLE, bin=args.bin, intervals=args.intervals)
+    if "reading" in ds.attrs:  # an NWB file: what was read, on which steps, which episodes
+        process.say(f"[vnl] read {ds.attrs['reading']}")
     method = registry.analysis(args.method)
     out = Path(args.out or default_out(args, ds))
     _check_outputs(args, out)

@@ -1,5 +1,6 @@
 """`vnl compare NETWORK NETWORK ...`: representational similarity (CKA, RSA, rsatoolbox's RDM
-comparisons) and dynamical similarity (DSA) of networks shown the same episodes."""
+comparisons) and dynamical similarity (DSA) of networks shown the same episodes; or, with
+`--conditions` or a lab's NWB file among them, of recordings' own activity (`vnl.compare_recorded`)."""
 
 from __future__ import annotations
 
@@ -12,14 +13,21 @@ from vnl import durable
 from vnl.cli import checks, options, process
 from vnl.errors import VnlError
 from vnl.neuro import registry
+from vnl.recording import formats
 from vnl.recording.formats import RUN_OR_RECORDING
+
+NETWORK = f"a run directory, {formats.ANALYSABLE}"
+"""What `vnl compare` takes as a NETWORK, as its errors say it."""
 
 
 def add(sub: Any) -> None:
     p = options.command(
         sub, "compare", "representational (CKA, RSA, RDM) and dynamical (DSA) similarity of networks", run, check
     )
-    p.add_argument("networks", nargs="+", metavar="NETWORK", help="RUN_DIR, RUN_DIR@STEP|best, or a recording")
+    p.add_argument(
+        "networks", nargs="+", metavar="NETWORK",
+        help="RUN_DIR, RUN_DIR@STEP|best, or a recording (vnl's NetCDF, or NWB: vnl's export or a lab's session)",
+    )  # fmt: skip
     p.add_argument("--recording", help="the episodes every network sees (default: the first recording given, else new)")
     p.add_argument("--episodes", type=options.COUNT, default=4, help="episodes of a new recording of the first network")
     p.add_argument("--steps", type=options.COUNT, help="steps per episode of a new recording (default: episode length)")
@@ -38,7 +46,16 @@ def add(sub: Any) -> None:
     p.add_argument(
         "--max-samples", type=options.COUNT, default=2000, help="rsa, rdm: at most this many steps (evenly spaced)"
     )
-    p.add_argument("--out", help="heatmap PNG (default <first run>/compare_<measure>.png; a .json beside it)")
+    p.add_argument(
+        "--conditions", metavar="VARIABLE[,VARIABLE...]",
+        help="compare the recordings' own activity averaged over bins of this behaviour variable (one for all, "
+        "or one per recording, in order; e.g. speed,forward_speed) instead of networks on shared observations",
+    )  # fmt: skip
+    p.add_argument("--condition-bins", type=options.integer(2, 1000), default=10,
+                   help="--conditions: how many equal bins of the range every recording covers (10)")  # fmt: skip
+    p.add_argument("--out", help="heatmap PNG (default <first run>/compare_<measure>.png, beside the first recording "
+                   "with --conditions; a .json beside it)")  # fmt: skip
+    options.nwb_flags(p)
     options.cache_flags(p)
 
 
@@ -72,14 +89,66 @@ def check(args: argparse.Namespace) -> None:
     for text in args.networks:
         path, run = Path(text), _run_dir(text)
         if path.is_file() or (path.is_symlink() and not path.exists()):
-            checks.recording(text, "network", RUN_OR_RECORDING)
+            checks.recording(text, "network", NETWORK)
         elif run.is_dir():
             checks.run_dir(str(run), "NETWORK")
         else:
             raise VnlError(f"{text} is neither a run directory (RUN_DIR or RUN_DIR@STEP) nor a recording file")
-    if args.recording:
-        checks.recording(args.recording)
+    if recorded(args):
+        _check_recorded(args)
+        # Recorded activity runs no network: no MuJoCo, and JAX only for DSA's fit, once the inputs
+        # are read and checked (a file the analyses cannot use is refused before JAX is imported).
+        args.mujoco, args.cache_later, args.no_compile_cache = False, not args.no_compile_cache, True
+    else:
+        if args.recording:
+            checks.recording(args.recording, wants=f"{RUN_OR_RECORDING}, or vnl's NWB export of one")
+            if formats.is_lab_nwb(args.recording):
+                raise VnlError(
+                    f"{args.recording} is an NWB file of a lab's session (not vnl's export): it holds no observations "
+                    "to show the networks; compare recorded activity instead (--conditions VARIABLE)"
+                )
+        if args.bin is not None or args.intervals is not None:
+            raise VnlError(
+                "--bin and --intervals read NWB files for their recorded activity (--conditions, or --measure dsa "
+                "with a lab's NWB file); networks shown a recording run on its steps"
+            )
     _check_outputs(Path(args.out or default_out(args)), _recordings(args), given=bool(args.out))
+
+
+def recorded(args: argparse.Namespace) -> bool:
+    """Whether the recordings' own activity is compared (`vnl.compare_recorded`): with
+    --conditions, or when a lab's NWB file (no network to run) is among the inputs."""
+    return bool(args.conditions) or any(Path(t).is_file() and formats.is_lab_nwb(t) for t in args.networks)
+
+
+def _check_recorded(args: argparse.Namespace) -> None:
+    """The inputs of a comparison of recorded activity: recordings only, --conditions for cka, rsa
+    and rdm and not for dsa, no --recording, --bin and --intervals only with an NWB file."""
+    dsa = measure_of(args) == "dsa"
+    lab = next((t for t in args.networks if Path(t).is_file() and formats.is_lab_nwb(t)), None)
+    if not args.conditions and not dsa:
+        raise VnlError(
+            f"{lab} is an NWB file of a lab's session (not vnl's export): there is no network to show the same "
+            "observations; compare recorded activity on matched conditions with --conditions VARIABLE (a behaviour "
+            "variable every recording holds, e.g. a speed), or the dynamics with --measure dsa"
+        )
+    if args.conditions and dsa:
+        raise VnlError(
+            "--conditions matches steps for cka, rsa and rdm; DSA compares each recording's dynamics over its own "
+            "episodes: leave --conditions out"
+        )
+    for text in args.networks:
+        if not Path(text).is_file():
+            raise VnlError(
+                f"{text} is a run directory; comparing recorded activity takes recordings: record it first "
+                f"(vnl record {text}) and give the recording"
+            )
+    if args.recording:
+        raise VnlError("--recording gives the episodes networks are shown; recorded activity is compared on each "
+                       "recording's own steps: leave --recording out")  # fmt: skip
+    for flag, value in (("--bin", args.bin), ("--intervals", args.intervals)):
+        if value is not None and not any(formats.identify(t).kind == "nwb" for t in args.networks):
+            raise VnlError(f"{flag} reads an NWB file's times; none of the recordings is an NWB file")
 
 
 def _recordings(args: argparse.Namespace) -> list[str]:
@@ -89,8 +158,11 @@ def _recordings(args: argparse.Namespace) -> list[str]:
 
 def default_out(args: argparse.Namespace) -> str:
     """<run>/compare_<measure>.png: the run of the first network (a recording's, read from its
-    attributes with h5py, before anything heavy is imported)."""
+    attributes with h5py, before anything heavy is imported); comparing recorded activity, beside
+    the first recording."""
     first = Path(args.networks[0])
+    if first.is_file() and recorded(args):
+        return str(checks.beside(first, f"compare_{measure_of(args)}.png"))
     if first.is_file():
         from vnl.recording import formats, model
 
@@ -112,6 +184,8 @@ def run(args: argparse.Namespace) -> int:
     if len(args.networks) < 2:
         raise VnlError("vnl compare needs at least two networks (run directories, RUN_DIR@STEP or recordings)")
     name, opts = measure_of(args), method_options(args)
+    if recorded(args):
+        return _run_recorded(args, name, opts)
     measure = registry.measure(name)
     sources = [compare.parse_source(text) for text in args.networks]
     out = Path(args.out) if args.out else sources[0].run_dir / f"compare_{name}.png"
@@ -123,6 +197,33 @@ def run(args: argparse.Namespace) -> int:
     opts = dataclasses.replace(opts, trials=int(mask.any(axis=1).sum()))
     nets = [compare.network(s, obs, mask, n) for s, n in zip(sources, compare.names(sources), strict=True)]
     result = compare.compare(nets, name, source=source, options=opts)
+    print(compare.table(result))
+    compare.heatmap(result, out)
+    durable.write_atomic(out.with_suffix(".json"), registry.json_text(result.to_json()))
+    print(f"wrote {out} and {out.with_suffix('.json')}")
+    return 0
+
+
+def _run_recorded(args: argparse.Namespace, name: str, opts: registry.Options) -> int:
+    """The recordings' own activity, on matched conditions or (dsa) over their own episodes."""
+    from vnl import compare, compare_recorded
+
+    out = Path(args.out or default_out(args))
+    _check_outputs(out, _recordings(args), given=bool(args.out))
+    recs = compare_recorded.read(args.networks, args.bin, args.intervals)
+    for r in recs:
+        if "reading" in r.ds.attrs:
+            process.say(f"[vnl] read {r.ds.attrs['reading']}")
+    if name == "dsa":
+
+        def ready() -> None:
+            args.no_compile_cache = not args.cache_later
+            process.compilation_cache(args)
+
+        result = compare_recorded.dynamics(recs, opts, ready)
+    else:
+        variables = [v.strip() for v in args.conditions.split(",") if v.strip()]
+        result = compare_recorded.on_conditions(recs, variables, args.condition_bins, name, opts)
     print(compare.table(result))
     compare.heatmap(result, out)
     durable.write_atomic(out.with_suffix(".json"), registry.json_text(result.to_json()))

@@ -11,6 +11,7 @@ from typing import Any
 
 from vnl.cli import checks, options
 from vnl.errors import VnlError
+from vnl.recording import formats
 
 FORMATS = {"netcdf": ".nc", "nwb": ".nwb"}
 
@@ -58,7 +59,9 @@ def check(args: argparse.Namespace) -> None:
             raise VnlError("give either RUN_DIR (record a run) or --from REC.nc (convert a recording), not both")
         if output_format(args) != "nwb":
             raise VnlError("--from converts a NetCDF recording to NWB; use --format nwb (or an --out ending in .nwb)")
-        checks.recording(args.source, "--from")  # by its content: already NWB, another HDF5 file, ...
+        checks.recording(
+            args.source, "--from", kinds=formats.NETCDF_ONLY
+        )  # by its content: already NWB, another HDF5 file, ...
         checks.output(args.out or default_out(args), (".nwb",), [args.source], given=bool(args.out))
         return
     if not args.run_dir:
@@ -85,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
     if args.source:
         from vnl import recording
 
-        ds = recording.read(args.source)
+        ds = recording.read(args.source, kinds=formats.NETCDF_ONLY)
         config_path = Path(str(ds.attrs.get("run_dir", ""))) / "config.yaml"
         config = config_path.read_text() if config_path.is_file() else None
         out = _write_nwb(ds, Path(args.out or default_out(args)), config, args.experimenter)

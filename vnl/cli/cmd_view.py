@@ -10,7 +10,7 @@ from typing import Any
 
 from vnl.cli import checks, options
 from vnl.errors import VnlError
-from vnl.recording.formats import RUN_OR_RECORDING
+from vnl.recording.formats import NETCDF_ONLY, RUN_OR_RECORDING
 
 
 def add(sub: Any) -> None:
@@ -43,7 +43,7 @@ def check(args: argparse.Namespace) -> None:
             raise VnlError("--step chooses a checkpoint to record; a recording was given")
     checks.output(args.out or default_out(args), (".rrd",), inputs=[args.source], given=bool(args.out))
     if not source.is_dir():  # by its content: an NWB file, another HDF5 file, ...
-        checks.recording(args.source, "RUN_DIR|RECORDING", RUN_OR_RECORDING)
+        checks.recording(args.source, "RUN_DIR|RECORDING", RUN_OR_RECORDING, NETCDF_ONLY)
 
 
 def default_out(args: argparse.Namespace) -> str:
@@ -58,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
     source = Path(args.source)
     out = Path(args.out or default_out(args))
     if source.is_file():
-        ds = recording.read(source, RUN_OR_RECORDING)
+        ds = recording.read(source, RUN_OR_RECORDING, NETCDF_ONLY)
         env = viewer.recording_env(ds, source)
     else:
         run = load_run(source, step=checks.chosen_step(source, args.step))

@@ -43,6 +43,32 @@ COUNT = integer(1, 10**7)
 would otherwise allocate terabytes before failing)."""
 
 
+def seconds(text: str) -> float:
+    """An argparse type: a duration in seconds, finite, above 0 and at most a day (a bin width)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of seconds, got {text!r}") from None
+    if not (0 < value <= 86400):  # also refuses nan and inf
+        raise argparse.ArgumentTypeError(f"must be above 0 and at most 86400 s, got {text}")
+    return value
+
+
+def nwb_flags(p: argparse.ArgumentParser) -> None:
+    """How an NWB file is read into steps and episodes (`vnl.recording.nwb_reader`)."""
+    g = p.add_argument_group("NWB files (a lab's session, or vnl's export)")
+    g.add_argument(
+        "--bin", type=seconds, metavar="SECONDS",
+        help="width of the bins spikes are counted in, centred on the behaviour's samples "
+        "(default: the behaviour's sampling interval)",
+    )  # fmt: skip
+    g.add_argument(
+        "--intervals", metavar="TABLE",
+        help="the intervals table whose rows are the episodes cross-validation holds out "
+        "(default: trials, else epochs, else vnl's episodes; `blocks`: 10 contiguous blocks)",
+    )  # fmt: skip
+
+
 def step_arg(text: str) -> int | str:
     """`--step`: a checkpoint step (>= 0) or `best`."""
     return "best" if text == "best" else NON_NEGATIVE(text)

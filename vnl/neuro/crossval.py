@@ -51,7 +51,7 @@ def folds(s: Samples, n_folds: int = 5) -> int:
             "record more with `vnl record RUN --episodes N`"
         )
     if len(s.episode) < 10:
-        raise VnlError(f"only {len(s.episode)} usable steps; record longer episodes")
+        raise VnlError(f"only {len(s.episode)} usable steps; record longer episodes (an NWB file: a smaller --bin)")
     return min(n_folds, len(episodes))
 
 
@@ -142,6 +142,20 @@ def _groups(episode: np.ndarray) -> np.ndarray:
     return np.minimum(np.arange(len(episode)) * 5 // max(len(episode), 1), 4)
 
 
+def _best_alphas(x: np.ndarray, y: np.ndarray, episode: np.ndarray, n_folds: int) -> np.ndarray:
+    """The index into `ALPHAS` of the penalty per output of `y` (n, q) with the least held-out
+    error of an inner `GroupKFold` by episode (`_groups`)."""
+    from sklearn.model_selection import GroupKFold
+
+    groups = _groups(episode)
+    inner = GroupKFold(min(n_folds, len(np.unique(groups))))
+    sse = np.zeros((len(ALPHAS), y.shape[1]))
+    for fit, val in inner.split(x, y, groups):
+        p = _ridge(x[fit], y[fit], x[val], ALPHAS)
+        sse += ((p - y[val][None]) ** 2).sum(1)
+    return np.argmin(sse, axis=0)
+
+
 def ridge_predict(x: np.ndarray, y: np.ndarray, episode: np.ndarray, n_folds: int) -> np.ndarray:
     """Held-out predictions (n, q) of `y` (n, q) from `x` (n, p): a ridge regression on
     standardised features, each sample predicted by a model fitted on the other folds (scikit-learn's
@@ -152,13 +166,21 @@ def ridge_predict(x: np.ndarray, y: np.ndarray, episode: np.ndarray, n_folds: in
 
     pred = np.zeros_like(y, dtype=np.float64)
     for train, test in GroupKFold(n_folds).split(x, y, episode):
-        groups = _groups(episode[train])
-        inner = GroupKFold(min(n_folds, len(np.unique(groups))))
-        sse = np.zeros((len(ALPHAS), y.shape[1]))
-        for fit, val in inner.split(x[train], y[train], groups):
-            p = _ridge(x[train][fit], y[train][fit], x[train][val], ALPHAS)
-            sse += ((p - y[train][val][None]) ** 2).sum(1)
-        best = np.argmin(sse, axis=0)  # per output
+        best = _best_alphas(x[train], y[train], episode[train], n_folds)
         p = _ridge(x[train], y[train], x[test], ALPHAS)
         pred[test] = p[best, :, np.arange(y.shape[1])].T
     return pred
+
+
+def ridge_weights(x: np.ndarray, y: np.ndarray, episode: np.ndarray, n_folds: int) -> np.ndarray:
+    """The ridge regression of `y` (n, q) on `x` (n, p) fitted on every sample, the penalty per
+    output chosen as in `ridge_predict` (an inner `GroupKFold` by episode): its weights (q, p) in
+    the units of `y` per unit of each column of `x` (what one unit of a feature adds to the
+    prediction). The features are standardised for the fit, so the penalty treats them alike."""
+    best = _best_alphas(x, y, episode, n_folds)
+    mx, sx, my = x.mean(0), x.std(0), y.mean(0)
+    sx = np.where(sx > 0, sx, 1.0)
+    u, s, vt = np.linalg.svd((x - mx) / sx, full_matrices=False)
+    uty = u.T @ (y - my)  # (k, q)
+    shrink = s[None, :] / (s[None, :] ** 2 + ALPHAS[best][:, None])  # (q, k)
+    return (shrink * uty.T) @ vt / sx  # (q, p)

@@ -12,6 +12,7 @@ standard deviation are the chance level to read the real R² against.
 from __future__ import annotations
 
 import dataclasses
+import re
 from pathlib import Path
 from typing import Any
 
@@ -75,8 +76,9 @@ def decode(
     repeats: int = 5,
     seed: int = 0,
 ) -> Decoding:
-    """Decodes `target` from `layer` (default: the policy's last hidden layer) of the recording."""
-    layer = layer or model.last_hidden_layer(ds)
+    """Decodes `target` from `layer` (default: the policy's last hidden layer; a lab's `units`) of
+    the recording."""
+    layer = layer or model.default_layer(ds)
     model.check_layer(ds, layer)
     cv.check_control(control)
     y, labels = behaviour.target(ds, target)
@@ -111,7 +113,9 @@ def analyze(ds: Any, options: Options) -> Decoding:
 
 
 def output_name(options: Options, ds: Any = None) -> str:
-    return f"decoding_{options.target.replace(':', '_')}"
+    """decoding_<target>, its characters other than letters, digits, `.`, `_` and `-` written `_`
+    (`joint:hip` -> decoding_joint_hip, `snout[x]` -> decoding_snout_x)."""
+    return "decoding_" + re.sub(r"[^A-Za-z0-9._-]+", "_", options.target).strip("_")
 
 
 def report(result: Decoding) -> str:

@@ -1,11 +1,14 @@
 """Encoding models: how well behaviour predicts each unit (`vnl analyze REC --method encoding`).
 
 For every layer, a ridge regression from the behaviour features (joint angles and velocities,
-centre-of-mass velocity, forward speed, foot contacts: `vnl.recording.behaviour.ENCODING_FEATURES`) to
-each unit's activity, fitted on some episodes and scored on the others (`GroupKFold` by episode):
-the held-out R² of each unit. The control fits and scores the same model on the features moved
-in time against the activity (`shift` or `shuffle`, `vnl.neuro.crossval.control`): what R² a
-model reaches on features that carry the same statistics but no alignment with the network.
+centre-of-mass velocity, forward speed, foot contacts: `vnl.recording.behaviour.ENCODING_FEATURES`;
+for an NWB file, every behaviour variable it holds) to each unit's activity, fitted on some
+episodes and scored on the others (`GroupKFold` by episode): the held-out R² of each unit. The
+control fits and scores the same model on the features moved in time against the activity
+(`shift` or `shuffle`, `vnl.neuro.crossval.control`): what R² a model reaches on features that
+carry the same statistics but no alignment with the network. Each unit's tuning is the same
+model fitted on every episode: its weights, the unit's activity per unit of each feature
+(`crossval.ridge_weights`).
 """
 
 from __future__ import annotations
@@ -26,7 +29,8 @@ from vnl.recording import behaviour, model
 @dataclasses.dataclass
 class Encoding:
     """Held-out R² per unit of each layer: `r2[layer]` (units,), `control_r2[layer]` (units,)
-    (NaN for a constant unit), with what was fitted."""
+    (NaN for a constant unit), each unit's tuning `weights[layer]` (units, features: its activity
+    per unit of each feature, fitted on every episode), with what was fitted."""
 
     features: list[str]
     r2: dict[str, np.ndarray]
@@ -36,6 +40,7 @@ class Encoding:
     samples: int
     episodes: int
     source: str
+    weights: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
 
     def summary(self, layer: str) -> dict[str, Any]:
         """Median and 90th percentile of the layer's R² (and of its control), units scored."""
@@ -63,6 +68,7 @@ class Encoding:
                     **self.summary(layer),
                     "r2": [_finite(v) for v in self.r2[layer]],
                     "control_r2": [_finite(v) for v in self.control_r2[layer]],
+                    "weights": [[_short(v) for v in row] for row in self.weights.get(layer, [])],
                 }
                 for layer in self.r2
             },
@@ -71,6 +77,11 @@ class Encoding:
 
 def _finite(v: float) -> float | None:
     return float(v) if np.isfinite(v) else None
+
+
+def _short(v: float) -> float | None:
+    """A weight with 4 significant digits (a layer's weights are units x features numbers)."""
+    return float(f"{v:.4g}") if np.isfinite(v) else None
 
 
 def encode_arrays(
@@ -95,25 +106,27 @@ def encode(
     seed: int = 0,
 ) -> Encoding:
     """Encoding models of `layers` (default: every layer) from `features` (default:
-    `ENCODING_FEATURES`) on the recording `ds`."""
+    `vnl.recording.behaviour.default_features`: `ENCODING_FEATURES`, or an NWB file's behaviour
+    variables) on the recording `ds`."""
     layers = layers or model.layers(ds)
     for layer in layers:
         model.check_layer(ds, layer)
     cv.check_control(control)
-    x, labels = behaviour.features(ds, features or list(behaviour.ENCODING_FEATURES))
+    x, labels = behaviour.features(ds, features or behaviour.default_features(ds))
     per_layer = {layer: cv.samples(ds, x, model.activity(ds, layer), labels, []) for layer in layers}
     if not any(cv.varies(s.y).any() for s in per_layer.values() if len(s.y)):
         raise VnlError(
             f"every unit of {', '.join(layers)} is constant over the usable steps: no encoding model can be "
             "scored; choose other layers (--layer) or record episodes in which the network's activity changes"
         )
-    r2, ctrl = {}, {}
+    r2, ctrl, weights = {}, {}, {}
     n = episodes = 0
     for layer, s in per_layer.items():
         r2[layer], ctrl[layer] = encode_arrays(s.x, s.y, s.episode, n_folds, control, seed)
         n, episodes = len(s.episode), len(np.unique(s.episode))
+        weights[layer] = cv.ridge_weights(s.x, s.y, s.episode, min(n_folds, episodes))
     k = min(n_folds, episodes)
-    return Encoding(labels, r2, ctrl, control, k, n, episodes, model.description(ds))
+    return Encoding(labels, r2, ctrl, control, k, n, episodes, model.description(ds), weights)
 
 
 def analyze(ds: Any, options: Options) -> Encoding:

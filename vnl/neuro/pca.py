@@ -41,8 +41,12 @@ def default_layer(ds: Any) -> str:
 
 
 def default_color(ds: Any) -> str:
-    """What to colour the scores by: `x_velocity` where recorded, else `reward`."""
-    return "x_velocity" if "x_velocity" in ds else "reward"
+    """What to colour the scores by: `x_velocity` where recorded, else `reward`, else the first
+    per-step variable (an NWB file's first one-column behaviour variable, or its bins' times)."""
+    for name in ("x_velocity", "reward"):
+        if name in ds:
+            return name
+    return next((v for v in model.per_step(ds) if v != "active"), "reward")
 
 
 @dataclasses.dataclass

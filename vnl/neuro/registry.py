@@ -65,8 +65,9 @@ class Options:
     """Every method's options (the CLI's flags); a method reads the ones it uses.
 
     analyze: `layer` (None: the method's default), `color` (pca), `target` (decoding), `features`
-    (encoding; None: `vnl.recording.behaviour.ENCODING_FEATURES`), `states` and `segmentation`
-    (states), `control`, `folds`, `repeats` (decoding's control fits), `seed`.
+    (encoding and states; None: `vnl.recording.behaviour.default_features`, the pose for states),
+    `states` and `segmentation` (states), `control`, `folds`, `repeats` (decoding's control fits),
+    `seed`.
     compare: `distance` (rsa, rdm), `comparison` (rdm), `delays` and `rank` (dsa), `max_samples`
     (rsa, rdm), `trials` (dsa: the compared steps are this many trials of equal length; set by
     `vnl.compare`).

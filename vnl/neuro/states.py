@@ -1,8 +1,9 @@
 """Behavioural states: segment the kinematics into states and show each layer's activity per state
 (`vnl analyze REC --method states`).
 
-The pose features (joint angles, forward speed, foot contacts: `POSE_FEATURES`) are standardised and
-reduced to their first principal components, then segmented into `k` states by:
+The pose features (joint angles, forward speed, foot contacts: `POSE_FEATURES`; an NWB file's
+behaviour variables; or `--features`) are standardised and reduced to their first principal
+components, then segmented into `k` states by:
 
 - `hmm` (default): a Gaussian hidden Markov model (hmmlearn, diagonal covariances), started sticky
   (0.95 on the diagonal of the transition matrix) so that states last: behaviour (a gait, a
@@ -156,13 +157,16 @@ def states(
     control: str = "shift",
     components: int = 8,
     seed: int = 0,
+    features: list[str] | None = None,
 ) -> States:
-    """Segments the recording's kinematics into `k` states and relates each layer to them."""
+    """Segments the recording's kinematics (`features`; default: the `POSE_FEATURES` it has, else
+    `vnl.recording.behaviour.default_features`) into `k` states and relates each layer to them."""
     layers = layers or model.layers(ds)
     for layer in layers:
         model.check_layer(ds, layer)
     cv.check_control(control)
-    x, labels_x = behaviour.features(ds, [n for n in POSE_FEATURES if n in ds] or list(POSE_FEATURES))
+    features = features or [n for n in POSE_FEATURES if n in ds] or behaviour.default_features(ds)
+    x, labels_x = behaviour.features(ds, features)
     first = model.activity(ds, layers[0])
     s = cv.samples(ds, x, first, labels_x, [])
     folds = cv.folds(s, n_folds)
@@ -199,7 +203,11 @@ def states(
 def analyze(ds: Any, options: Options) -> States:
     """`states` with the CLI's options (`vnl analyze --method states`)."""
     layers = [options.layer] if options.layer else None
-    return states(ds, options.states, options.segmentation, layers, options.folds, options.control, seed=options.seed)
+    features = list(options.features) if options.features else None
+    return states(
+        ds, options.states, options.segmentation, layers, options.folds, options.control, seed=options.seed,
+        features=features,
+    )  # fmt: skip
 
 
 def output_name(options: Options, ds: Any = None) -> str:

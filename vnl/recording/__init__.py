@@ -9,6 +9,9 @@ methods that analyse a recording are `vnl.neuro`'s).
   recording with the reader of its kind or names what it got and what the command wants.
 - `netcdf`: the NetCDF-4 file `vnl record` writes (`write`, `read`).
 - `nwb`: the NWB 2 export, `vnl record --format nwb` (`write`, `inspect`).
+- `nwb_reader`: NWB files read into the model (vnl's exports, a lab's units and behaviour), on the
+  time base of `timebase` (bins centred on the behaviour's samples).
+- `synthetic`: a synthetic lab session with a known tuning, as NWB (no real data ships).
 
 Importing the package imports no numerical library; h5py, xarray, pynwb are imported on use.
 """

@@ -32,6 +32,7 @@ name (`joint:<name>`).
 
 from __future__ import annotations
 
+import json
 from typing import Any
 
 import numpy as np
@@ -237,28 +238,58 @@ def _per_step(ds: Any, name: str) -> tuple[np.ndarray, list[str]]:
     return values, [f"{name}[{c}]" for c in np.asarray(ds[v.dims[2]].values)]
 
 
+def available(ds: Any) -> list[str]:
+    """The behaviour variables of a recording, each a feature or a decoding target by its name:
+    those an NWB file held (its `behaviour` attribute, `vnl.recording.nwb_reader`), or a vnl
+    recording's per-step variables with one to a few columns (`forward_speed`, `joint_angle`, ...),
+    neither the layers nor the bookkeeping (`active`, `done`, `nwb_time`)."""
+    if "behaviour" in ds.attrs:
+        return [str(n) for n in json.loads(ds.attrs["behaviour"]) if n in ds]
+    skip = {"active", "done", "nwb_time", "observation", *model.layers(ds)}
+    return [str(v) for v in ds.data_vars if ds[v].dims[:2] == model.STEP_DIMS and ds[v].ndim <= 3 and v not in skip]
+
+
+def default_features(ds: Any) -> list[str]:
+    """What an encoding model predicts each unit from by default: `ENCODING_FEATURES` in a vnl
+    recording, every behaviour variable of an NWB file (`available`)."""
+    if "behaviour" in ds.attrs and not any(n in ds for n in ENCODING_FEATURES):
+        return available(ds)
+    return list(ENCODING_FEATURES)
+
+
 def features(ds: Any, names: tuple[str, ...] | list[str] = ENCODING_FEATURES) -> tuple[np.ndarray, list[str]]:
     """The behaviour features `names` side by side: (episode, time, features) and their labels.
-    `gait_phase` enters as its cosine and sine."""
-    absent = [n for n in names if n not in ds]
+    `gait_phase` enters as its cosine and sine; a name may pick one column (`snout[x]`)."""
+    absent = [n for n in names if n not in ds and _column(ds, n) is None]
     if absent:
-        present = [v for v in ENCODING_FEATURES + ("gait_phase", "gap_distance") if v in ds]
-        raise VnlError(
-            f"the recording has no {', '.join(absent)}: record it again with this vnl "
-            f"(behaviour features in it: {', '.join(present) or 'none'})"
-        )
+        present = available(ds)
+        fix = "record it again with this vnl" if "behaviour" not in ds.attrs else "choose others with --features"
+        shown = ", ".join(present) or "none"
+        raise VnlError(f"the recording has no {', '.join(absent)}: {fix} (behaviour variables in it: {shown})")
     parts, labels = [], []
     for n in names:
-        values, lab = target(ds, n) if n == "gait_phase" else _per_step(ds, n)
+        values, lab = target(ds, n) if n == "gait_phase" or n not in ds else _per_step(ds, n)
         parts.append(values)
         labels += lab
     return np.concatenate(parts, axis=-1), labels
 
 
+def _column(ds: Any, name: str) -> tuple[str, Any] | None:
+    """`NAME[label]`: the variable NAME and its column `label`, when the recording has both."""
+    if not name.endswith("]") or "[" not in name:
+        return None
+    var, _, label = name[:-1].rpartition("[")
+    if var not in ds.data_vars or ds[var].ndim != 3 or ds[var].dims[:2] != model.STEP_DIMS:
+        return None
+    labels = [str(c) for c in np.asarray(ds[ds[var].dims[2]].values)]
+    return (var, labels.index(label)) if label in labels else None
+
+
 def target(ds: Any, name: str) -> tuple[np.ndarray, list[str]]:
     """A decoding target (episode, time, k) and its labels: `forward_speed`, `gait_phase` (its
     cosine and sine: a phase is circular), `gap_distance`, `joint:<joint name>` (that joint's
-    angle) or any per-step variable of the recording (`x_velocity`, `reward`, ...)."""
+    angle), any per-step variable of the recording (`x_velocity`, `reward`, an NWB file's `snout`,
+    ...) or one column of one (`snout[x]`)."""
     if name.startswith("joint:"):
         joint = name.split(":", 1)[1]
         if "joint_angle" not in ds:
@@ -268,9 +299,15 @@ def target(ds: Any, name: str) -> tuple[np.ndarray, list[str]]:
         if not match:
             raise VnlError(f"no joint {joint!r}; joints: {', '.join(n.split('/')[-1] for n in names)}")
         return np.asarray(ds["joint_angle"].sel(joint=match[0]).values, np.float64)[..., None], [name]
-    if name not in ds.data_vars:
+    column = _column(ds, name)
+    if column is not None:
+        var, i = column
+        return np.asarray(ds[var].values[..., i], np.float64)[..., None], [name]
+    if name not in ds.data_vars or name in model.layers(ds):
+        shown = ", ".join(available(ds)) or "none"
         raise VnlError(
-            f"no target {name!r}; choose forward_speed, gait_phase, joint:<name> or one of {model.per_step(ds)}"
+            f"no target {name!r} in the recording; its behaviour variables: {shown} "
+            "(also joint:<name> for a joint's angle, NAME[column] for one column); choose one with --target"
         )
     if name == "gait_phase":
         phase = 2 * np.pi * np.asarray(ds[name].values, np.float64)

@@ -8,14 +8,16 @@ dimension scales), a vnl recording when it also holds `active`, `time` and a net
 
 `read` gives the recording at a path or one `VnlError` line naming what the path is and what the
 command wants. `READERS` maps a kind to the module whose `read(path) -> Dataset` reads it into the
-recording model: a reader for another format (a lab's NWB with units and pose) is one module and
-one line there.
+recording model: `vnl.recording.netcdf` for vnl's recordings, `vnl.recording.nwb_reader` for NWB
+files (vnl's exports and a lab's sessions: units and behaviour). A command that cannot use every
+kind (`vnl view` draws the body from orientations NWB does not keep) names the kinds it takes.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import importlib
+import json
 import os
 from pathlib import Path
 from typing import Any
@@ -28,10 +30,13 @@ USER_BLOCKS = (512, 1024, 2048, 4096)  # where else HDF5 puts its signature, aft
 NETCDF3_SIGNATURES = (b"CDF\x01", b"CDF\x02", b"CDF\x05")
 RECORDING = "a vnl recording (NetCDF, written by `vnl record`)"
 RUN_OR_RECORDING = f"a run directory or {RECORDING}"
+ANALYSABLE = f"{RECORDING} or an NWB file with units and behaviour"
 """What the commands that read a recording (or a run) want, as their errors say it."""
 
-READERS = {"recording": "vnl.recording.netcdf"}
+READERS = {"recording": "vnl.recording.netcdf", "nwb": "vnl.recording.nwb_reader"}
 """kind -> the module whose `read(path)` returns the recording model of a file of that kind."""
+NETCDF_ONLY = ("recording",)
+"""The kinds of the commands that need what only vnl's NetCDF recording holds (`view`, `record --from`)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -93,37 +98,62 @@ def _hdf5(p: Path) -> Kind:
         return Kind("damaged", f"a damaged HDF5 file (h5py: {_first_line(e)})")
 
 
-def readable(path: str | Path, wants: str = RECORDING) -> Kind:
-    """What `path` is (`identify`) when a reader reads it (`READERS`); else `VnlError` naming
-    what it is and what the command `wants`."""
+def readable(path: str | Path, wants: str = RECORDING, kinds: tuple[str, ...] | None = None) -> Kind:
+    """What `path` is (`identify`) when a reader of one of `kinds` (default: every kind of
+    `READERS`) reads it; else `VnlError` naming what it is and what the command `wants`."""
     found = identify(path)
     if found.kind == "missing":
         raise VnlError(f"recording not found: {path} (write one with `vnl record RUN_DIR`)")
-    if found.kind not in READERS:
+    if found.kind not in (READERS if kinds is None else kinds):
         raise VnlError(f"{path} is {found.what}; {_wanted(found.kind, wants)}")
     return found
 
 
-def read(path: str | Path, wants: str = RECORDING) -> Any:
+def read(path: str | Path, wants: str = RECORDING, kinds: tuple[str, ...] | None = None, **options: Any) -> Any:
     """The recording at `path` as an `xarray.Dataset` (loaded into memory), read by the reader of
-    its kind; else `VnlError` naming what `path` is and what the command `wants`."""
-    found = readable(path, wants)
+    its kind (one of `kinds`, default every kind); else `VnlError` naming what `path` is and what
+    the command `wants`. `options` (`bin`, `intervals`) go to the NWB reader; None is its default."""
+    found = readable(path, wants, kinds)
+    given = {k: v for k, v in options.items() if v is not None}
+    if found.kind == "nwb":
+        return importlib.import_module(READERS["nwb"]).read(Path(path), **given)
+    if given:
+        flags = ", ".join(f"--{k}" for k in given)
+        raise VnlError(f"{flags}: only for NWB files; {path} is {found.what}, already on its control steps")
     return importlib.import_module(READERS[found.kind]).read(Path(path))
 
 
 def attributes(path: str | Path) -> dict[str, Any]:
     """The root attributes of a recording file (`run_dir`, `checkpoint_step`, ...), read with h5py
-    alone: what the CLI needs of a recording before anything heavy is imported."""
+    alone: what the CLI needs of a recording before anything heavy is imported. For an NWB file,
+    those vnl's export keeps in its notes (JSON; none for a lab's file)."""
     import h5py
 
     with h5py.File(path, "r") as f:
+        if "nwb_version" in f.attrs:
+            return _nwb_notes(f)
         return {k: _text(v) if isinstance(v, bytes) else v for k, v in f.attrs.items()}
+
+
+def _nwb_notes(f: Any) -> dict[str, Any]:
+    """vnl's export's notes (run_dir, checkpoint_step, env, ...) of an open NWB file; {} otherwise."""
+    notes = f.get("general/notes")
+    try:
+        value = json.loads(_text(notes[()])) if notes is not None else {}
+    except (TypeError, ValueError):
+        return {}
+    return {k: v for k, v in value.items() if k != "config"} if isinstance(value, dict) and "run_dir" in value else {}
+
+
+def is_lab_nwb(path: str | Path) -> bool:
+    """Whether `path` is an NWB file that is not vnl's export (no network to run: a lab's session)."""
+    return identify(path).kind == "nwb" and not attributes(path)
 
 
 def _wanted(kind: str, wants: str) -> str:
     """What to give instead, for a path of `kind`."""
     hint = {
-        "nwb": "; vnl writes NWB as an export (`vnl record --format nwb`) and reads back the NetCDF recording",
+        "nwb": "; `vnl analyze` and `vnl compare` read NWB files",
         "run": "; record it first: `vnl record RUN_DIR`",
     }.get(kind, "")
     return f"this command reads {wants}{hint}"

@@ -16,7 +16,9 @@ from typing import Any
 
 from vnl.errors import VnlError
 
-LAYER_PREFIXES = ("policy_", "value_")
+LAYER_PREFIXES = ("policy_", "value_", "units")
+"""What a layer's name starts with: a network's (`policy_hidden_0`, ...) or a lab's units (`units`,
+`units_<series>`, read from an NWB file by `vnl.recording.nwb_reader`)."""
 STEP_DIMS = ("episode", "time")
 REQUIRED = ("active", "time")
 
@@ -43,6 +45,14 @@ def last_hidden_layer(ds: Any) -> str:
     if not hidden:
         raise VnlError("the recording has no policy hidden layer; choose one with --layer")
     return hidden[-1]
+
+
+def default_layer(ds: Any) -> str:
+    """The population decoded by default: the policy's last hidden layer, else the first layer (a
+    lab's `units`, read from an NWB file)."""
+    if any(v.startswith("policy_hidden_") for v in layers(ds)) or not layers(ds):
+        return last_hidden_layer(ds)
+    return layers(ds)[0]
 
 
 def activity(ds: Any, layer: str) -> Any:
@@ -89,7 +99,11 @@ def recorded_run(ds: Any, recording: str | Path | None = None) -> Path:
 
 
 def description(ds: Any) -> str:
-    """A one-line description of the recording for figure titles."""
+    """A one-line description of the recording for figure titles and the analyses' JSON: the env
+    and checkpoint of a vnl recording; an NWB file's name and what its episodes are (trials,
+    epochs, or contiguous blocks when it has neither)."""
+    if "env" not in ds.attrs and "nwb_file" in ds.attrs:
+        return f"{Path(str(ds.attrs['nwb_file'])).name}, episodes: {ds.attrs.get('episodes', '?')}"
     return f"{ds.attrs.get('env', '?')} @ step {ds.attrs.get('checkpoint_step', '?')}"
 
 
