@@ -64,3 +64,6 @@ def test_a_new_walker_is_one_module_and_one_registered_row(tmp_path, monkeypatch
     assert "long_ant" not in walkers.names()
     with pytest.raises(VnlError, match="built-in walker"):
         walkers.unregister("ant")
+    with pytest.raises(VnlError, match="'rodent' is a built-in walker; register yours under another name"):
+        walkers.register("rodent", "long_ant", "a rat that is an ant")
+    assert walkers.spec("rodent").module == "vnl.walkers.rodent"

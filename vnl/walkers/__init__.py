@@ -65,6 +65,8 @@ def register(name: str, module: str, description: str, standalone: bool = False,
     """Adds a walker at run time: `module:function(config) -> Walker` (a `vnl.walkers.base.Walker`)."""
     if not name.isidentifier():
         raise VnlError(f"a walker's name must be a Python identifier, got {name!r}")
+    if name in _BUILT_IN:
+        raise VnlError(f"{name!r} is a built-in walker; register yours under another name")
     _WALKERS[name] = Spec(module, description, standalone, function)
 
 
