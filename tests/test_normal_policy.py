@@ -4,7 +4,7 @@
 import jax
 import numpy as np
 import pytest
-import test_train
+import test_trainer
 
 from vnl import record
 from vnl import typed_config as config_lib
@@ -21,10 +21,10 @@ from vnl.train import trainer, warm_start
 pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("normal_policy"), pytest.mark.usefixtures("point_envs")]
 
 NORMAL = {"distribution_type": "normal", "noise_std_type": "log", "init_noise_std": 0.5}
-# tests/test_train.py's PPO settings and Brax's default sizes (with a 2x32 policy and a 2x64 value
+# tests/test_trainer.py's PPO settings and Brax's default sizes (with a 2x32 policy and a 2x64 value
 # network the normal policy did not learn this task in 100k steps: -29.6), MuJoCo C physics.
 SETTINGS = {
-    **test_train.SETTINGS,
+    **test_trainer.SETTINGS,
     "network": {"policy_hidden_layer_sizes": [32] * 4, "value_hidden_layer_sizes": [256] * 5, **NORMAL},
     "env_config": {"impl": "c"},
 }
@@ -43,7 +43,7 @@ def test_a_normal_policy_learns_and_its_scale_is_one_learned_parameter(trained):
     cfg, out = trained
     records = metrics_io.read(out / "metrics.jsonl")
     first, last = records[0]["eval/episode_reward"], records[-1]["eval/episode_reward"]
-    # As tests/test_train.py: zero action scores about -26, a hand-tuned PD controller -9.4.
+    # As tests/test_trainer.py: zero action scores about -26, a hand-tuned PD controller -9.4.
     assert last > -17 and last > first + 8, (first, last)
     _, arrays, _ = checkpoint.load_train_state(out)
     _, start, _ = checkpoint.load_train_state(out, 0)
