@@ -1,9 +1,11 @@
-"""Real file-system failures for the tests: a small tmpfs that fills up, a read-only bind mount.
-
-Both need root (the tests skip without it, or where the kernel refuses the mount)."""
+"""Real file-system failures for the tests: a small tmpfs that fills up, a read-only bind mount
+(both need root: the tests skip without it, or where the kernel refuses the mount); and a
+snapshot of a tree, to show that a command changed nothing in it."""
 
 import contextlib
+import hashlib
 import os
+import stat
 import subprocess
 import tempfile
 from pathlib import Path
@@ -70,3 +72,13 @@ def fill(directory: Path) -> Path:
     finally:
         os.close(fd)
     return filler
+
+
+def snapshot(root: Path) -> dict[str, tuple]:
+    """Every entry under `root`: (kind, size, mode, mtime, sha256 of a regular file's bytes)."""
+    out = {}
+    for p in sorted(root.rglob("*")):
+        st = p.lstat()
+        digest = hashlib.sha256(p.read_bytes()).hexdigest() if stat.S_ISREG(st.st_mode) else ""
+        out[str(p.relative_to(root))] = (stat.S_IFMT(st.st_mode), st.st_size, st.st_mode, st.st_mtime_ns, digest)
+    return out

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from fsutil import snapshot
 
 from vnl import typed_config as config_lib
 from vnl.train import config as train_config
@@ -197,7 +198,6 @@ import dataclasses  # noqa: E402
 import json  # noqa: E402
 import shutil  # noqa: E402
 import signal  # noqa: E402
-import stat  # noqa: E402
 import time  # noqa: E402
 
 LAUNCHER = """
@@ -467,16 +467,6 @@ def link_and_odd_input_cases() -> list[Case]:
     return cases
 
 
-def _snapshot(root: Path) -> dict[str, tuple]:
-    """Every entry under `root`: (kind, size, mode, mtime, sha256 of a regular file's bytes)."""
-    out = {}
-    for p in sorted(root.rglob("*")):
-        st = p.lstat()
-        digest = hashlib.sha256(p.read_bytes()).hexdigest() if stat.S_ISREG(st.st_mode) else ""
-        out[str(p.relative_to(root))] = (stat.S_IFMT(st.st_mode), st.st_size, st.st_mode, st.st_mtime_ns, digest)
-    return out
-
-
 def _fuzz_fixtures(root: Path) -> None:
     """The sandbox template: the old fixtures plus a run with a checkpoint, a user's folder with
     its own config.yaml, and runs whose config.yaml or metrics.jsonl are odd."""
@@ -547,7 +537,7 @@ def _sandbox(template: Path, where: Path, case: Case) -> Path:
 def _run_case(template: Path, where: Path, ro: Path, case: Case) -> str | None:
     """Runs one case; None when it passed, else what went wrong."""
     tree = _sandbox(template, where, case)
-    before, ro_before = _snapshot(tree), _snapshot(ro)
+    before, ro_before = snapshot(tree), snapshot(ro)
     mark = where / "mark.json"
     env = {
         **{k: v for k, v in os.environ.items() if k not in ("VNL_COMPILE_CACHE", "MUJOCO_GL")},
@@ -588,8 +578,8 @@ def _run_case(template: Path, where: Path, ro: Path, case: Case) -> str | None:
     imported = json.loads(mark.read_text()) if mark.is_file() else {"jax": "?", "mujoco": "?"}
     if case.light and (imported["jax"] or imported["mujoco"]):
         problems.append(f"imported {imported} before refusing")
-    if _snapshot(tree) != before or _snapshot(ro) != ro_before:
-        after = _snapshot(tree)
+    if snapshot(tree) != before or snapshot(ro) != ro_before:
+        after = snapshot(tree)
         changed = sorted(k for k in set(before) | set(after) if before.get(k) != after.get(k))
         problems.append(f"changed {changed[:5]}")
     return "; ".join(problems) or None

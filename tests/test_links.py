@@ -7,7 +7,6 @@ with hard links, or with a folder that is itself a link. The generated fuzz of t
 (tests/test_cli_fuzz.py) runs the same classes as subprocesses.
 """
 
-import hashlib
 import os
 import stat
 import warnings
@@ -15,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from fsutil import snapshot
 from test_hardening import ARRAYS, PARAMS, _meta, _one_error, _run
 
 from vnl import durable
@@ -36,16 +36,6 @@ def _copy_as_links(src: Path, dst: Path) -> None:
             os.symlink(Path(dirpath, name).absolute(), here / name)
 
 
-def _snapshot(root: Path) -> dict[str, tuple]:
-    """Every entry under `root`: (kind, size, mode, mtime, inode, sha256 of a regular file)."""
-    out = {}
-    for p in sorted(root.rglob("*")):
-        st = p.lstat()
-        digest = hashlib.sha256(p.read_bytes()).hexdigest() if stat.S_ISREG(st.st_mode) else ""
-        out[str(p.relative_to(root))] = (stat.S_IFMT(st.st_mode), st.st_size, st.st_mode, st.st_mtime_ns, digest)
-    return out
-
-
 def _original(tmp_path: Path) -> Path:
     """A run with checkpoints 0, 2, 4, their metrics and its lock file (written by its session)."""
     run = _run(tmp_path, "orig")
@@ -63,7 +53,7 @@ def test_resuming_a_copy_made_of_links_never_changes_the_original(tmp_path):
     orig = _original(tmp_path)
     copy = tmp_path / "copy"
     _copy_as_links(orig, copy)
-    before = _snapshot(orig)
+    before = snapshot(orig)
     say = lambda line: None  # noqa: E731
     checkpoint.tidy(copy)
     with runlock.hold(copy):
@@ -79,7 +69,7 @@ def test_resuming_a_copy_made_of_links_never_changes_the_original(tmp_path):
         durable.write_atomic(copy / layout.LEARNING_CURVE, b"png")
         durable.write_atomic(copy / layout.FINAL_VIDEO, b"mp4")
         durable.write_atomic(copy / "eval.json", b"{}")
-    assert _snapshot(orig) == before
+    assert snapshot(orig) == before
     for name in (layout.CONFIG, layout.METRICS, layout.LOCK, layout.LEARNING_CURVE, layout.FINAL_VIDEO):
         assert stat.S_ISREG((copy / name).lstat().st_mode), name
     assert [r["step"] for r in metrics_io.read(copy / layout.METRICS)] == [0, 2, 4]
@@ -112,11 +102,11 @@ def test_a_lock_file_that_is_a_link_is_replaced_and_what_it_shared_is_left_alone
         os.link(orig / layout.LOCK, copy / layout.LOCK)
     else:
         os.symlink(orig / (layout.LOCK if link == "symbolic" else "missing"), copy / layout.LOCK)
-    before = _snapshot(orig)
+    before = snapshot(orig)
     with runlock.hold(copy, command="vnl train --resume copy"):
         assert runlock.holder(copy)["command"] == "vnl train --resume copy"
         assert stat.S_ISREG((copy / layout.LOCK).lstat().st_mode) and (copy / layout.LOCK).lstat().st_nlink == 1
-    assert _snapshot(orig) == before and (orig / layout.LOCK).stat().st_nlink == 1
+    assert snapshot(orig) == before and (orig / layout.LOCK).stat().st_nlink == 1
 
 
 def test_the_copy_of_a_running_run_is_a_run_of_its_own(tmp_path, capsys):
@@ -133,7 +123,7 @@ def test_the_copy_of_a_running_run_is_a_run_of_its_own(tmp_path, capsys):
 
 def test_checkpoints_that_are_links_are_removed_as_links_and_a_linked_folder_is_refused(tmp_path, capsys):
     orig = _original(tmp_path)
-    before = _snapshot(orig)
+    before = snapshot(orig)
     copy = tmp_path / "copy"
     copy.mkdir()
     (copy / layout.CONFIG).symlink_to(orig / layout.CONFIG)
@@ -145,7 +135,7 @@ def test_checkpoints_that_are_links_are_removed_as_links_and_a_linked_folder_is_
     checkpoint.save(copy, 6, PARAMS, 1, ARRAYS, _meta(6))  # rotates linked steps 2 and 4 out
     assert checkpoint.steps(copy) == [0, 6]
     assert sorted(p.name for p in (copy / layout.CHECKPOINTS).iterdir()) == ["000000000000", "000000000006"]
-    assert _snapshot(orig) == before
+    assert snapshot(orig) == before
     # a `checkpoints` folder that is itself a link: refused before anything is written through it
     linked = tmp_path / "linked"
     _copy_as_links(orig, linked)
@@ -156,7 +146,7 @@ def test_checkpoints_that_are_links_are_removed_as_links_and_a_linked_folder_is_
         checkpoint.save(linked, 6, PARAMS, 1, ARRAYS, _meta(6))
     with pytest.raises(VnlError, match="symbolic link"):
         checkpoint.tidy(linked)
-    assert _snapshot(orig) == before
+    assert snapshot(orig) == before
 
 
 def test_outputs_given_as_links_are_refused_before_the_work_and_default_ones_replaced(tmp_path, capsys):
@@ -484,10 +474,10 @@ def test_a_resume_refused_for_a_checkpoint_of_another_setup_writes_nothing(tmp_p
     metrics_io.rewrite(run / layout.METRICS, [{"step": 0}, {"step": 10}])
     checkpoint.save(run, 0, PARAMS, 0, ARRAYS, _meta(0))  # arrays of another setup
     checkpoint.save(run, 10, PARAMS, 0, ARRAYS, _meta(10))
-    before = _snapshot(run)
+    before = snapshot(run)
     with pytest.raises(VnlError, match="does not match this env and config"):
         trainer.resume(run, 0, say=lambda line: None)
-    assert _snapshot(run) == before
+    assert snapshot(run) == before
 
 
 @pytest.mark.slow
@@ -504,9 +494,9 @@ def test_a_real_resume_of_a_cp_as_copy_finishes_and_leaves_the_original_as_it_wa
     sets = ["--set", "ppo.num_evals=3", "--set", "log.keep_checkpoints=1"]
     assert cli.main([*train, *sets, "--steps", "2048", "--out", str(orig)]) == 0
     subprocess.run(["cp", "-as", str(orig), str(copy)], check=True)
-    before = _snapshot(orig)
+    before = snapshot(orig)
     assert cli.main(["train", "--resume", str(copy), "--steps", "4096"]) == 0
-    assert _snapshot(orig) == before
+    assert snapshot(orig) == before
     steps = [r["step"] for r in metrics_io.read(copy / layout.METRICS)]
     assert steps[-1] == 4096 and steps == sorted(set(steps))
     assert config_lib.load_yaml(str(copy / layout.CONFIG))["ppo"]["num_timesteps"] == 4096
