@@ -103,6 +103,15 @@ class DmDriver:
         return observed, float(reward), orb, self.logic()
 
 
+@functools.cache
+def _halves(e):
+    """`e.prepare` and `e.react` on a scripted pose (qpos), jitted once per env."""
+    react = jax.jit(
+        lambda s, q: e.react(s, e.forward(e.make_data(qpos=q, mocap_pos=s.data.mocap_pos)), jp.float32(0.0))
+    )
+    return jax.jit(e.prepare), react
+
+
 class VnlDriver:
     """vnl's env, stepped with the same placements (`prepare`, a scripted physics state, `react`)."""
 
@@ -118,10 +127,7 @@ class VnlDriver:
         start = sum(w for _, w in e.observation_layout()[:-1])
         assert e.observation_layout()[-1] == ("task_logic", 1)
         self.logic_index = start
-        self._prepare = jax.jit(e.prepare)
-        self._react = jax.jit(
-            lambda s, q: e.react(s, e.forward(e.make_data(qpos=q, mocap_pos=s.data.mocap_pos)), jp.float32(0.0))
-        )
+        self._prepare, self._react = _halves(e)
 
     def step(self, offset):
         s = self._prepare(self.state)
@@ -366,13 +372,11 @@ def test_touch_distances_are_mujocos(shape):
     m = mujoco.MjModel.from_xml_string(xml)
     d = mujoco.MjData(m)
     geoms = TouchGeoms.of(m, [1])
+    distance = jax.jit(lambda xpos, xmat, p: geoms.distance(types.SimpleNamespace(geom_xpos=xpos, geom_xmat=xmat), p))
     rng = np.random.default_rng(1)
     for _ in range(50):
         d.mocap_pos[0] = np.array([0.1, 0.2, 0.3]) + rng.normal(size=3) * 0.05
         mujoco.mj_forward(m, d)
         want = max(mujoco.mj_geomDistance(m, d, 0, 1, 1.0, None) + 1e-6, 0.0)
-        data = types.SimpleNamespace(
-            geom_xpos=jp.asarray(d.geom_xpos), geom_xmat=jp.asarray(d.geom_xmat).reshape(-1, 3, 3)
-        )
-        got = float(geoms.distance(data, jp.asarray(d.mocap_pos[0]))[0])
+        got = float(distance(jp.asarray(d.geom_xpos), jp.asarray(d.geom_xmat).reshape(-1, 3, 3), d.mocap_pos[0])[0])
         assert got == pytest.approx(want, abs=2e-5), d.mocap_pos[0]
