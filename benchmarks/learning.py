@@ -27,7 +27,8 @@ Task measures (eval metrics, per evaluation episode): run tasks: mean forward ve
 the fraction of the episode upright; gaps: gaps crossed and distance along the corridor (m); bowl:
 the fraction of episodes that left the bowl and the seconds spent in it (the whole episode for
 those that did not leave); cue_memory: the fraction of episodes that end at the cued target, and
-that end nearer it than the other (chance 0.5).
+that end nearer it than the other (chance 0.5); rodent_two_touch: the correct pairs (two touches of
+the orb 0.7-0.9 s apart) and the first touches (trials begun) per episode.
 """
 
 from __future__ import annotations
@@ -59,12 +60,18 @@ MEASURES = {
         ("success", "eval/episode_measure/success", ".2f"),
         ("correct choice", "eval/episode_measure/choice_correct", ".2f"),
     ],
+    "two_touch": [
+        ("correct pairs", "eval/episode_measure/correct_pairs", ".2f"),
+        ("first touches", "eval/episode_measure/first_touches", ".2f"),
+    ],
 }
 
 
 def task_of(env: str) -> str:
     if env == "cue_memory":
         return "memory"
+    if env.endswith("two_touch"):
+        return "two_touch"
     return "gaps" if env.endswith("run_gaps") else "bowl" if env.endswith("escape_bowl") else "run"
 
 

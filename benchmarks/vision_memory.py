@@ -28,9 +28,9 @@ import jax
 import jax.numpy as jp
 import numpy as np
 
+from vnl.ppo.loop import PPOLoop
 from vnl.tasks.contract import Env, State
 from vnl.train import config as train_config
-from vnl.ppo.loop import PPOLoop
 
 GIB = 2**30
 

@@ -23,8 +23,8 @@ import time
 
 import jax
 
-from vnl.train import config as train_config
 from vnl.ppo.loop import PPOLoop
+from vnl.train import config as train_config
 
 
 def steps_per_second(config: train_config.TrainConfig, epochs: int, steps_per_epoch: int) -> float:

@@ -13,7 +13,7 @@ from typing import Any
 
 from vnl import typed_config as config_lib
 from vnl.errors import VnlError
-from vnl.tasks import cue_memory, escape_bowl, find_target, run, run_gaps
+from vnl.tasks import cue_memory, escape_bowl, find_target, run, run_gaps, two_touch
 from vnl.tasks.contract import Env
 from vnl.vision.env import VisionConfig, VisionEnv
 
@@ -58,6 +58,11 @@ _REGISTRY: dict[str, Entry] = {
         escape_bowl.EscapeBowl,
         escape_bowl.RODENT_ESCAPE_BOWL,
         "The rat climbs out of a bumpy heightfield bowl (reward: upright x distance).",
+    ),
+    "rodent_two_touch": Entry(
+        two_touch.TwoTouch,
+        two_touch.RODENT_TWO_TOUCH,
+        "The rat touches an orb, waits, and touches it again 0.7-0.9 s after (dm_control's two-touch task).",
     ),
     "ant_run_gaps": Entry(
         run_gaps.RunGaps,
