@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import argparse
 import atexit
-import ctypes
 import datetime
 import importlib.util
 import json
@@ -74,12 +73,17 @@ def _on_signal(signum: int, frame: Any) -> None:
     raise SystemExit(128 + signum)
 
 
-def _die_with_parent() -> None:
-    """In the child, before exec: the kernel sends it SIGKILL when the check dies (Linux)."""
-    try:
-        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
-    except (OSError, AttributeError):
-        pass
+DIE_WITH_PARENT = (
+    "import ctypes, os, signal, sys\n"
+    "try:\n"
+    "    ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG, kept across exec\n"
+    "except (OSError, AttributeError):\n"
+    "    pass\n"
+    "os.execvp(sys.argv[1], sys.argv[1:])\n"
+)
+"""A launcher that asks the kernel to SIGKILL the run when the check dies (Linux), then becomes the
+run. In place of `preexec_fn`, which makes `subprocess` fork the whole parent (a pytest worker
+holding JAX can then fail to fork for lack of memory)."""
 
 
 def machine() -> dict[str, str]:
@@ -132,14 +136,13 @@ class Run:
         self.stopped_by: str | None = None
         env = {**os.environ, "XLA_PYTHON_CLIENT_PREALLOCATE": "false", "PYTHONUNBUFFERED": "1"}
         self.proc = subprocess.Popen(
-            cmd,
+            [sys.executable, "-c", DIE_WITH_PARENT, *cmd],
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
             text=True,
             cwd=ROOT,
             env=env,
             start_new_session=True,  # its own process group: killed whole
-            preexec_fn=_die_with_parent,  # noqa: PLW1509 - no threads start before exec
         )
         _children.add(self.proc.pid)
         self.log.write(f"{0.0:8.1f} s  {name}  started: pid {self.proc.pid}: {' '.join(cmd)}\n")
@@ -229,7 +232,7 @@ def parse(argv: list[str] | None = None) -> argparse.Namespace:
     args = parser.parse_args(argv)
     args.preset = "gpu"
     if args.smoke:
-        args.preset, args.impls, args.budget, args.evals = "tiny", ["c"], min(args.budget, 5.0), 500_000
+        args.preset, args.impls, args.budget, args.evals = "tiny", ["c"], min(args.budget, 5.0), 100_000
     return args
 
 

@@ -51,7 +51,7 @@ def point_envs():
 
 @pytest.fixture(scope="session")
 def rat_recording(tmp_path_factory):
-    """An untrained rat in the gaps corridor (MuJoCo C physics): 3 episodes of 80 steps, as a
+    """An untrained rat in the gaps corridor (MuJoCo C physics, no tilt check): 3 episodes of 80 steps, as a
     dataset, its NetCDF file and its NWB file: (run, dataset, .nc path, .nwb path). Tests that use
     it carry `xdist_group("neuro_record")`, so one worker records it once."""
     from test_viewer import untrained_run  # tests/ is on sys.path; imported here: it imports JAX
@@ -59,7 +59,11 @@ def rat_recording(tmp_path_factory):
     from vnl import record
     from vnl.recording import netcdf, nwb
 
-    run = untrained_run(tmp_path_factory.mktemp("neuro") / "run", "rodent_run_gaps")
+    # Without the env's tilt check (dm_control's rule): an untrained rat falls over within steps,
+    # and episodes of a few steps would make a recording too short to export as NWB expects.
+    run = untrained_run(
+        tmp_path_factory.mktemp("neuro") / "run", "rodent_run_gaps", ("env_config.healthy_min_upright=null",)
+    )
     ds = record.record(run, episodes=3, steps=80, seed=0)
     path = netcdf.write(ds, run.run_dir / "record.nc")
     out = nwb.write(ds, run.run_dir / "record.nwb", config="env: rodent_run_gaps\n", command="test")

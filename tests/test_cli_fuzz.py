@@ -69,6 +69,9 @@ def _fixtures(root: Path) -> None:
         "run/checkpoints/000000000000/train_state.npz": "garbage",
         "run/checkpoints/000000000000/meta.json": "{garbage",
         "run_no_ckpt/config.yaml": good_yaml.read_text(),
+        # evaluated once, its checkpoints gone: --resume cannot start it again from step 0
+        "run_lost_ckpt/config.yaml": good_yaml.read_text(),
+        "run_lost_ckpt/metrics.jsonl": record,
         "run_bad_yaml/config.yaml": "env: ant_run\nppo: [unclosed\n",
         "run_bad_config/config.yaml": "env: ant_run\nppo: {nope: 1}\n",
         "run_bad_metrics/config.yaml": good_yaml.read_text(),
@@ -135,7 +138,7 @@ def bad_invocations() -> list[list[str]]:
     cases += [["train", "ant_run", "--preset", "huge"]]
     cases += [
         ["train", "--resume", "run_bad_config"],
-        ["train", "--resume", "run_no_ckpt"],
+        ["train", "--resume", "run_lost_ckpt"],  # (run_no_ckpt, never evaluated, is started again)
         ["train", "--resume", "run"],
     ]
     cases += [

@@ -475,8 +475,9 @@ def test_ant_foot_in_a_gap_fails_with_terminate_foot_below():
     """`feet_lowest` is the lowest point of the feet's capsules: an ant settled on a platform (1 s of
     MuJoCo C, no action) rests its feet on the top (z = 0, within the contacts' 5-mm penetration);
     with its front feet over a 0.45-m gap they hang into it, below -0.3 m, a failure with
-    `terminate_foot_below=-0.05` and none without (its feet stay above `terminate_at_height`)."""
-    strict, default = vnl.make("ant_run_gaps", terminate_foot_below=-0.05), vnl.make("ant_run_gaps")
+    `terminate_foot_below=-0.05` and none without it (its feet stay above `terminate_at_height`)."""
+    strict = vnl.make("ant_run_gaps", terminate_foot_below=-0.05)
+    default = vnl.make("ant_run_gaps", terminate_foot_below=None)  # dm_control's rule alone
     m, p = strict.mj_model, strict.corridor
     seen = {}
     for where, x in (("platform", 16.0), ("gap", 16.5)):  # the front feet reach ~0.65 m ahead
@@ -493,11 +494,11 @@ def test_ant_foot_in_a_gap_fails_with_terminate_foot_below():
 def test_ant_wedged_in_a_gap_fails_with_terminate_root_below():
     """The ant's torso (a sphere of radius 0.25 m) over a 0.45-m gap wedges between the platforms'
     edges with its centre below 0.2 m, where its feet stay above `terminate_at_height`: a failure
-    with `terminate_root_below=0.2`, none without (the default). On a platform it rests at 0.25 m and
+    with `terminate_root_below=0.2` (the env's), none without. On a platform it rests at 0.25 m and
     does not fail. (MuJoCo C, 1.5 s; only the torso collides, as when its legs flail in the air.)"""
     results = {}
     for below in (0.2, None):
-        e = vnl.make("ant_run_gaps", terminate_root_below=below)
+        e = vnl.make("ant_run_gaps", terminate_root_below=below, terminate_foot_below=None)  # legs pass through
         m, p = copy.deepcopy(e.mj_model), e.corridor
         legs = [
             g for g in range(m.ngeom) if m.geom(g).name.startswith("walker/") and m.geom(g).name != "walker/torso_geom"
@@ -727,7 +728,7 @@ def test_the_ant_observes_the_corridors_direction_and_its_offset_from_the_centre
     """`observe_corridor` (ant_run_gaps' default): the last 4 observations are the world x-axis in
     the root's frame and y / half-width; turned 90° left and moved 1.25 m to the left, they read
     (0, -1, 0) and 0.5. The rat's corridor (dm_control's observation) does not have them."""
-    env = vnl.make("ant_run_gaps", impl="c")
+    env = vnl.make("ant_run_gaps", impl="c", ground_scan=())  # the corridor last, without the ground scan
     assert env.observation_layout()[-1] == ("corridor", 4)
     assert "corridor" not in dict(vnl.make("rodent_run_gaps", impl="c", observe_corridor=False).observation_layout())
     state = jax.jit(env.reset)(jax.random.PRNGKey(0))

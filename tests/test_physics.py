@@ -295,6 +295,7 @@ CACHE_SCRIPT = textwrap.dedent(
     import vnl
     from vnl import compile_cache
     compile_cache.enable({cache!r})
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)  # this program compiles in < 0.5 s here
     env = vnl.make("rodent_run", impl="c")
     def rollout(key):
         s = jax.vmap(env.reset)(jax.random.split(key, 4))

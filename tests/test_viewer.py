@@ -21,12 +21,13 @@ from vnl.train import config as train_config
 pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("viewer")]
 
 
-def untrained_run(run_dir: Path, env_name: str) -> LoadedRun:
+def untrained_run(run_dir: Path, env_name: str, assignments: tuple[str, ...] = ()) -> LoadedRun:
     """A run directory with a config.yaml and freshly initialized networks (no training): what
-    `vnl record` needs, in seconds."""
+    `vnl record` needs, in seconds. `assignments`: `--set`s of its config."""
     from brax.training.acme import running_statistics, specs
 
-    config = train_config.resolved(train_config.build(env_name, "tiny", assignments=["env_config.impl=c"]))
+    sets = ["env_config.impl=c", *assignments]
+    config = train_config.resolved(train_config.build(env_name, "tiny", assignments=sets))
     run_dir.mkdir(parents=True)
     config_lib.dump_yaml(config, str(run_dir / "config.yaml"))
     env = config.make_env()

@@ -335,7 +335,7 @@ def test_depth_and_rgbd_modes():
 def test_vision_errors_name_the_setting_before_compiling():
     from vnl.train import config as train_config
 
-    with pytest.raises(VnlError, match=r"no camera 'nope' in the model; cameras: side, egocentric"):
+    with pytest.raises(VnlError, match=r"no camera 'nope' in the model; cameras: side, walker/egocentric"):
         vnl.make("find_target", vision={"camera": "nope"})
     with pytest.raises(VnlError, match=r"vision\.width must be in \[8, 512\]"):
         vnl.make("find_target", vision={"width": 4})
