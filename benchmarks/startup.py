@@ -17,6 +17,8 @@ cache warmed by a first untimed run; it prints each round and the medians:
     .venv/bin/python benchmarks/startup.py [--env rodent_run] [--impls c jax] [--preset cpu]
     .venv/bin/python benchmarks/startup.py --env rodent_run_gaps --init-from RUN \\
         --trees /work/wt-before . --rounds 3
+    .venv/bin/python benchmarks/startup.py --env rodent_run --preset gpu --set ppo.num_envs=8 \\
+        --set ppo.batch_size=8 --set ppo.num_eval_envs=8 --trees /work/wt-before . --cold --rounds 2
 """
 
 from __future__ import annotations
@@ -85,22 +87,25 @@ def train_command(args: argparse.Namespace, out: Path, cache: Path, impl: str | 
         cmd += ["--set", f"env_config.impl={impl}"]
     if args.init_from:
         cmd += ["--init-from", str(Path(args.init_from).absolute())]
+    for text in args.set:
+        cmd += ["--set", text]
     return cmd
 
 
 def compare_trees(args: argparse.Namespace, tmp: Path) -> None:
     trees = [Path(t).absolute() for t in args.trees]
+    cache = "an empty compilation cache each run" if args.cold else "warm compilation cache"
     print(f"{args.env}, preset {args.preset}{', warm start' if args.init_from else ''}: seconds to the first")
-    print("training step (warm compilation cache) and worlds built, alternating rounds; nothing else timed")
+    print(f"training step ({cache}) and worlds built, alternating rounds; nothing else timed")
     runs = 0
 
     def once(i: int) -> tuple[float, int, float]:
         nonlocal runs
         runs += 1
-        cmd = train_command(args, tmp / f"run-{runs}", tmp / f"cache-{i}", None)
+        cmd = train_command(args, tmp / f"run-{runs}", tmp / (f"cache-run-{runs}" if args.cold else f"cache-{i}"), None)
         return seconds_to_ready(cmd, trees[i], args.timeout)
 
-    for i in range(len(trees)):  # warm each tree's cache (untimed)
+    for i in range(len(trees) if not args.cold else 0):  # warm each tree's cache (untimed)
         once(i)
     times: dict[int, list[float]] = {i: [] for i in range(len(trees))}
     hosts: dict[int, list[float]] = {i: [] for i in range(len(trees))}
@@ -128,6 +133,8 @@ def main() -> None:
     parser.add_argument("--init-from", help="a run to warm-start from (vnl train --init-from)")
     parser.add_argument("--trees", nargs="+", help="source trees to compare (alternating rounds)")
     parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--cold", action="store_true", help="with --trees: every run compiles from an empty cache")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config changes, every run")
     parser.add_argument("--timeout", type=float, default=3600)
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:

@@ -159,7 +159,7 @@ def test_sigterm_during_first_evaluation_stops_at_once_and_resume_starts_the_run
     result = trainer.train(cfg, tmp_path / "run", say=said.append)
     assert result.interrupted and result.steps == 0
     assert checkpoint.steps(tmp_path / "run") == [] and (tmp_path / "run" / "config.yaml").is_file()
-    assert any("stopped while compiling and running the first evaluation" in s for s in said), said
+    assert any("stopped while compiling the training epoch and the first evaluation" in s for s in said), said
     time.sleep(1.5)  # the abandoned evaluation finishes in its thread
     monkeypatch.setattr(PPOLoop, "evaluate", original)
     again = trainer.resume(tmp_path / "run", say=said.append)
