@@ -33,21 +33,22 @@ Policy = Callable[[jax.Array, jax.Array], jax.Array]
 class RecurrentPolicy:
     """A trained recurrent policy (jit-able): `initial_state(batch_shape)` -> the core's state at
     the start of an episode (zeros: (c, h) for an LSTM, (h,) for a GRU, each batch_shape +
-    (core_size,)); `step(obs (..., obs), state, rng) -> (action (..., actions), state)`."""
+    (core_size,); with `network.architecture: merel` every core's, as a dict); `step(obs (...,
+    obs), state, rng) -> (action (..., actions), state)`."""
 
     networks: Any  # vnl.ppo.recurrent.RecurrentPPONetworks
     params: Any  # (normalizer, policy, value) params
     deterministic: bool = True
 
-    def initial_state(self, batch_shape: tuple[int, ...] = ()) -> tuple[jax.Array, ...]:
-        return self.networks.policy_network.initial_carry(tuple(batch_shape))
+    def initial_state(self, batch_shape: tuple[int, ...] = ()) -> Any:
+        return self.networks.policy_initial_carry(tuple(batch_shape))
 
-    def step(self, obs: Any, state: tuple[jax.Array, ...], rng: jax.Array) -> tuple[jax.Array, Any]:
+    def step(self, obs: Any, state: Any, rng: jax.Array) -> tuple[jax.Array, Any]:
         from vnl.ppo.recurrent_ppo import sample
 
-        normalizer, params, _ = self.params
-        no_reset = jax.numpy.zeros(state[0].shape[:-1])
-        logits, state, _ = self.networks.policy_network.step(normalizer, params, obs, state, no_reset)
+        normalizer, policy, value = self.params
+        no_reset = jax.numpy.zeros(jax.tree.leaves(state)[0].shape[:-1])
+        logits, state = self.networks.policy_step(normalizer, policy, value, obs, state, no_reset)
         action, _ = sample(self.networks.parametric_action_distribution, logits, rng, self.deterministic)
         return action, state
 

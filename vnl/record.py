@@ -67,7 +67,9 @@ def network_activity(
     equals the run's policy's. A recurrent run (`network.core`) takes and returns its cores' state
     `core` ({"policy": carry, "value": carry}; `initial_core`) and adds `<net>_core_h` (and
     `<net>_core_c` for an LSTM): the core's state after reading `obs`, from which the step's
-    output (and action) is computed.
+    output (and action) is computed. Merel's network (`network.architecture: merel`) has
+    `encoder_hidden_<i>`, `encoder_vision_<camera>`, `core_h`/`core_c`, `policy_core_<i>_h`/`_c`,
+    `policy_output` and `value_output` (`vnl.ppo.merel`).
     """
     if run.config.network.core is not None:
         return _recurrent_activity(run, obs, key, deterministic, core)
@@ -129,6 +131,10 @@ def _recurrent_activity(
     the core's new state, the head's output."""
     networks = make_recurrent_networks(run.config, run.env)
     normalizer, policy_params, value_params = run.params
+    if run.config.network.architecture == "merel":
+        out, logits, new_core = networks.activity(normalizer, policy_params, value_params, obs, core)
+        out["action"] = _action(networks.parametric_action_distribution, logits, key, deterministic)
+        return out, new_core
     act = ACTIVATIONS[run.config.network.activation]
     no_reset = jp.zeros(core["policy"][0].shape[:-1])
     out: dict[str, Any] = {}

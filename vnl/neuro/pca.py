@@ -33,11 +33,13 @@ def pca(activity: np.ndarray, n_components: int = 3) -> tuple[np.ndarray, np.nda
 
 
 def default_layer(ds: Any) -> str:
-    """The first policy hidden layer, else the first layer with at least 2 units."""
+    """The first policy hidden layer (Merel's network: its first policy core's state), else the
+    first layer with at least 2 units."""
     layers = [n for n in model.layers(ds) if model.units(ds, n) >= 2]
     if not layers:
         raise VnlError("no layer of this recording has 2 or more units; a PCA needs at least 2")
-    return next((n for n in layers if n.startswith("policy_hidden")), layers[0])
+    cores = (n for n in layers if n.startswith("policy_core_") and n.endswith("_h") and n[12:-2].isdigit())
+    return next((n for n in layers if n.startswith("policy_hidden")), next(cores, layers[0]))
 
 
 def default_color(ds: Any) -> str:

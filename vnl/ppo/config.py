@@ -160,6 +160,17 @@ class NetworkConfig:
     # MLPs (docs/how-to/recurrent.md).
     core: Literal["lstm", "gru"] | None = None
     core_size: int = 128
+    # `brax`: the policy and the value network apart, as above. `merel`: Merel et al. 2020's
+    # virtual-rodent network (vnl.ppo.merel; docs/how-to/merel-network.md): a proprioceptive MLP
+    # (`encoder_hidden_layer_sizes`) and, with --vision, a ResNet per camera feed the `core`,
+    # whose output the value reads; the policy's own stacked cores (`policy_core_sizes`) read the
+    # core without training it. The `*_hidden_layer_sizes` and `cnn_*` keys are then unused.
+    architecture: Literal["brax", "merel"] = "brax"
+    encoder_hidden_layer_sizes: tuple[int, ...] = (256, 256)
+    policy_core_sizes: tuple[int, ...] = (128,)
+    resnet_channels: tuple[int, ...] = (16, 32, 32)
+    resnet_blocks: int = 2
+    resnet_features: int = 256
 
     def validate(self) -> None:
         if not 1 <= self.core_size <= MAX_LAYER:
@@ -183,12 +194,32 @@ class NetworkConfig:
                     f"{key}: at most 64 layers of at most {most:,} {what}, got {list(sizes)[:8]}"
                     f"{' ...' if len(sizes) > 8 else ''}; use fewer or smaller layers"
                 )
+        if self.architecture == "merel":
+            self._validate_merel()
         n = len(self.cnn_channels)
         if len(self.cnn_kernel_sizes) != n or len(self.cnn_strides) != n:
             raise VnlError(
                 f"cnn_channels, cnn_kernel_sizes and cnn_strides need one value per convolution; got "
                 f"{n}, {len(self.cnn_kernel_sizes)} and {len(self.cnn_strides)} values"
             )
+
+    def _validate_merel(self) -> None:
+        if self.core is None:
+            raise VnlError(
+                "network.architecture merel needs a recurrent core: set network.core to lstm (the paper's) or gru"
+            )
+        for key, most, what in (
+            ("encoder_hidden_layer_sizes", MAX_LAYER, "units"),
+            ("policy_core_sizes", MAX_LAYER, "units"),
+            ("resnet_channels", 4096, "channels"),
+        ):
+            sizes = getattr(self, key)
+            if not sizes or any(s < 1 for s in sizes) or any(s > most for s in sizes) or len(sizes) > 64:
+                raise VnlError(f"{key} must be a list of 1 to 64 sizes, each 1..{most:,} {what}, got {list(sizes)[:8]}")
+        if not 0 <= self.resnet_blocks <= 64:
+            raise VnlError(f"resnet_blocks must be in 0..64 residual blocks per section, got {self.resnet_blocks}")
+        if not 1 <= self.resnet_features <= MAX_LAYER:
+            raise VnlError(f"resnet_features must be in 1..{MAX_LAYER:,} units, got {self.resnet_features}")
 
 
 class RunSettings(Protocol):

@@ -279,16 +279,20 @@ class PPOLoop:
     def init_training(self, key: jax.Array) -> TrainingState:
         """Brax's `TrainingState` before training (one copy): fresh networks drawn from `key`,
         the optimizer state, an empty observation normalizer, 0 env steps."""
-        key_policy, key_value = jax.random.split(key)
-        params = ppo_losses.PPONetworkParams(
-            policy=self.network.policy_network.init(key_policy),
-            value=self.network.value_network.init(key_value),
-        )
+        params = self._init_params(key)
         return TrainingState(
             optimizer_state=self.optimizer.init(params),
             params=params,
             normalizer_params=running_statistics.init_state(_normalized_spec(self.observation_size)),
             env_steps=brax_types.UInt64(hi=0, lo=0),
+        )
+
+    def _init_params(self, key: jax.Array) -> Any:
+        """Fresh policy and value parameters drawn from `key`."""
+        key_policy, key_value = jax.random.split(key)
+        return ppo_losses.PPONetworkParams(
+            policy=self.network.policy_network.init(key_policy),
+            value=self.network.value_network.init(key_value),
         )
 
     def _place(self, tree: Any) -> Any:

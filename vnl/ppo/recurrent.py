@@ -139,21 +139,71 @@ class RecurrentNetwork:
 @dataclasses.dataclass(frozen=True)
 class RecurrentPPONetworks:
     """The recurrent counterpart of Brax's `PPONetworks`: `policy_network`, `value_network` (each
-    a `RecurrentNetwork`; the value's output has size 1) and Brax's `parametric_action_distribution`."""
+    a `RecurrentNetwork`; the value's output has size 1) and Brax's `parametric_action_distribution`.
+
+    What PPO calls (`vnl.ppo.merel.MerelNetworks` has the same): init(key) -> (policy params, value
+    params); initial_carry(batch_shape) -> {"policy": carry, "value": carry}; step(normalizer,
+    policy, value, obs (..., obs), carry, reset (...)) -> (policy output, value (...), carry);
+    unroll(..., obs (T, ...), carry, resets (T, ...)) -> (outputs (T, ...), values (T, ...),
+    carry); bootstrap(...) -> value (...); and for a trained policy alone, policy_initial_carry and
+    policy_step(normalizer, policy, value, obs, state, reset) -> (policy output, state).
+    """
 
     policy_network: RecurrentNetwork
     value_network: RecurrentNetwork
     parametric_action_distribution: Any
+
+    def init(self, key: jax.Array) -> tuple[Any, Any]:
+        key_policy, key_value = jax.random.split(key)
+        return self.policy_network.init(key_policy), self.value_network.init(key_value)
+
+    def initial_carry(self, batch_shape: tuple[int, ...] = ()) -> dict[str, Carry]:
+        return {
+            "policy": self.policy_network.initial_carry(batch_shape),
+            "value": self.value_network.initial_carry(batch_shape),
+        }
+
+    def policy_initial_carry(self, batch_shape: tuple[int, ...] = ()) -> Carry:
+        return self.policy_network.initial_carry(batch_shape)
+
+    def step(
+        self, normalizer: Any, policy: Any, value: Any, obs: Any, carry: dict[str, Carry], reset: jax.Array
+    ) -> tuple[Any, jax.Array, dict[str, Carry]]:
+        logits, policy_carry, _ = self.policy_network.step(normalizer, policy, obs, carry["policy"], reset)
+        v, value_carry, _ = self.value_network.step(normalizer, value, obs, carry["value"], reset)
+        return logits, jp.squeeze(v, -1), {"policy": policy_carry, "value": value_carry}
+
+    def policy_step(
+        self, normalizer: Any, policy: Any, value: Any, obs: Any, state: Carry, reset: jax.Array
+    ) -> tuple[Any, Carry]:
+        logits, state, _ = self.policy_network.step(normalizer, policy, obs, state, reset)
+        return logits, state
+
+    def unroll(
+        self, normalizer: Any, policy: Any, value: Any, obs: Any, carry: dict[str, Carry], resets: jax.Array
+    ) -> tuple[Any, jax.Array, dict[str, Carry]]:
+        logits, policy_carry = self.policy_network.unroll(normalizer, policy, obs, carry["policy"], resets)
+        values, value_carry = self.value_network.unroll(normalizer, value, obs, carry["value"], resets)
+        return logits, jp.squeeze(values, -1), {"policy": policy_carry, "value": value_carry}
+
+    def bootstrap(
+        self, normalizer: Any, policy: Any, value: Any, obs: Any, carry: dict[str, Carry], reset: jax.Array
+    ) -> jax.Array:
+        v, _, _ = self.value_network.step(normalizer, value, obs, carry["value"], reset)
+        return jp.squeeze(v, -1)
 
 
 def is_recurrent(net: NetworkConfig) -> bool:
     return net.core is not None
 
 
-def make_recurrent_networks(config: RunSettings, env: Env) -> RecurrentPPONetworks:
-    """Policy and value `RecurrentNetwork`s with the run's sizes, core and action distribution."""
+def make_recurrent_networks(config: RunSettings, env: Env) -> Any:
+    """Policy and value `RecurrentNetwork`s with the run's sizes, core and action distribution
+    (`RecurrentPPONetworks`), or with `network.architecture: merel` `vnl.ppo.merel.MerelNetworks`."""
     net = config.network
     normalize = running_statistics.normalize if config.ppo.normalize_observations else (lambda x, y: x)
+    if net.architecture == "merel":
+        return _merel_networks(net, env, normalize)
     vision = None
     if isinstance(env.observation_size, dict):
         vision = {
@@ -163,12 +213,7 @@ def make_recurrent_networks(config: RunSettings, env: Env) -> RecurrentPPONetwor
             "cnn_max_pool": net.cnn_max_pool,
             "cnn_global_pool": net.cnn_pool,
         }
-    if net.distribution_type == "normal":
-        dist = distribution.NormalDistribution(event_size=env.action_size)
-        out, std = env.action_size, env.action_size
-    else:
-        dist = distribution.NormalTanhDistribution(event_size=env.action_size)
-        out, std = dist.param_size, 0
+    dist, out, std = _action_distribution(net, env.action_size)
     common = {"core": net.core, "core_size": net.core_size, "activation": ACTIVATIONS[net.activation], "vision": vision}
     policy = CoreNet(
         tuple(net.policy_hidden_layer_sizes),
@@ -184,6 +229,34 @@ def make_recurrent_networks(config: RunSettings, env: Env) -> RecurrentPPONetwor
         RecurrentNetwork(value, env.observation_size, normalize),
         dist,
     )
+
+
+def _action_distribution(net: NetworkConfig, action_size: int) -> tuple[Any, int, int]:
+    """(Brax's action distribution, the policy's output size, its learned-scale size)."""
+    if net.distribution_type == "normal":
+        return distribution.NormalDistribution(event_size=action_size), action_size, action_size
+    dist = distribution.NormalTanhDistribution(event_size=action_size)
+    return dist, dist.param_size, 0
+
+
+def _merel_networks(net: NetworkConfig, env: Env, normalize: Callable[[Any, Any], Any]) -> Any:
+    from vnl.ppo.merel import MerelNet, MerelNetworks
+
+    dist, out, std = _action_distribution(net, env.action_size)
+    resnet = {"channels": tuple(net.resnet_channels), "blocks": net.resnet_blocks, "features": net.resnet_features}
+    module = MerelNet(
+        encoder_sizes=tuple(net.encoder_hidden_layer_sizes),
+        core=str(net.core),
+        core_size=net.core_size,
+        policy_core_sizes=tuple(net.policy_core_sizes),
+        out_size=out,
+        activation=ACTIVATIONS[net.activation],
+        resnet=resnet if isinstance(env.observation_size, dict) else None,
+        std_size=std,
+        noise_std_type=net.noise_std_type,
+        init_noise_std=net.init_noise_std,
+    )
+    return MerelNetworks(module, env.observation_size, normalize, dist)
 
 
 def make_networks(config: RunSettings, env: Env) -> Any:

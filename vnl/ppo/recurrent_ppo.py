@@ -29,6 +29,7 @@ import jax.numpy as jp
 import numpy as np
 from brax import envs as brax_envs
 from brax.training import types as brax_types
+from brax.training.agents.ppo import losses as ppo_losses
 from brax.training.agents.ppo.losses import compute_gae
 
 from vnl.ppo.loop import PPOLoop, TrainingState
@@ -46,11 +47,8 @@ def sample(dist: Any, logits: Any, key: jax.Array, deterministic: bool) -> tuple
 
 
 def zero_carry(networks: RecurrentPPONetworks, batch_shape: tuple[int, ...]) -> dict[str, Any]:
-    """Both networks' core states at zero, shape batch_shape + (core_size,) each."""
-    return {
-        "policy": networks.policy_network.initial_carry(batch_shape),
-        "value": networks.value_network.initial_carry(batch_shape),
-    }
+    """The cores' states at zero ({"policy": ..., "value": ...}), batch_shape + (size,) each."""
+    return networks.initial_carry(batch_shape)
 
 
 def actor_step(
@@ -69,8 +67,7 @@ def actor_step(
     and the reset flags, for the loss's re-run."""
     normalizer, policy_params, value_params = params
     reset = state.done
-    logits, policy_carry, _ = networks.policy_network.step(normalizer, policy_params, state.obs, carry["policy"], reset)
-    _, value_carry, _ = networks.value_network.step(normalizer, value_params, state.obs, carry["value"], reset)
+    logits, _, new_carry = networks.step(normalizer, policy_params, value_params, state.obs, carry, reset)
     action, policy_extras = sample(networks.parametric_action_distribution, logits, key, deterministic)
     nstate = env.step(state, action)
     transition = brax_types.Transition(
@@ -85,7 +82,7 @@ def actor_step(
             "core": {"carry": carry, "reset": reset},
         },
     )
-    return nstate, {"policy": policy_carry, "value": value_carry}, transition
+    return nstate, new_carry, transition
 
 
 def recurrent_ppo_loss(
@@ -106,22 +103,14 @@ def recurrent_ppo_loss(
     data = jax.tree.map(lambda x: jp.swapaxes(x, 0, 1), data)  # time first: (T, B, ...)
     core = data.extras["core"]
     resets = core["reset"]
-    logits, _ = networks.policy_network.unroll(
-        normalizer_params,
-        params.policy,
-        data.observation,
-        jax.tree.map(lambda c: c[0], core["carry"]["policy"]),
-        resets,
+    first = jax.tree.map(lambda c: c[0], core["carry"])
+    logits, baseline, carry = networks.unroll(
+        normalizer_params, params.policy, params.value, data.observation, first, resets
     )
-    values, value_carry = networks.value_network.unroll(
-        normalizer_params, params.value, data.observation, jax.tree.map(lambda c: c[0], core["carry"]["value"]), resets
-    )
-    baseline = jp.squeeze(values, -1)
     last = jax.tree.map(lambda x: x[-1], data.next_observation)
-    bootstrap, _, _ = networks.value_network.step(
-        normalizer_params, params.value, last, value_carry, 1 - data.discount[-1]
+    bootstrap_value = networks.bootstrap(
+        normalizer_params, params.policy, params.value, last, carry, 1 - data.discount[-1]
     )
-    bootstrap_value = jp.squeeze(bootstrap, -1)
 
     rewards = data.reward * reward_scaling
     truncation = data.extras["state_extras"]["truncation"]
@@ -212,6 +201,9 @@ class RecurrentPPOLoop(PPOLoop):
 
     def _make_network(self, env: Any) -> RecurrentPPONetworks:
         return make_recurrent_networks(self.config, env)
+
+    def _init_params(self, key: jax.Array) -> Any:
+        return ppo_losses.PPONetworkParams(*self.network.init(key))
 
     def _loss_fn(self) -> Any:
         return functools.partial(recurrent_ppo_loss, networks=self.network, **self._loss_settings())

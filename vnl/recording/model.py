@@ -16,9 +16,10 @@ from typing import Any
 
 from vnl.errors import VnlError
 
-LAYER_PREFIXES = ("policy_", "value_", "units")
-"""What a layer's name starts with: a network's (`policy_hidden_0`, ...) or a lab's units (`units`,
-`units_<series>`, read from an NWB file by `vnl.recording.nwb_reader`)."""
+LAYER_PREFIXES = ("policy_", "value_", "encoder_", "core_", "units")
+"""What a layer's name starts with: a network's (`policy_hidden_0`, ...; Merel's network's shared
+`encoder_hidden_0`, `core_h`, ...) or a lab's units (`units`, `units_<series>`, read from an NWB
+file by `vnl.recording.nwb_reader`)."""
 STEP_DIMS = ("episode", "time")
 REQUIRED = ("active", "time")
 
@@ -40,8 +41,12 @@ def check_layer(ds: Any, layer: str) -> None:
 
 
 def last_hidden_layer(ds: Any) -> str:
-    """The policy's last hidden layer (the default population to decode from)."""
+    """The policy's last hidden layer (the default population to decode from): its MLP's last, or
+    the state of the last of Merel's policy cores (`policy_core_<i>_h`)."""
     hidden = sorted((v for v in layers(ds) if v.startswith("policy_hidden_")), key=lambda n: int(n.rsplit("_", 1)[1]))
+    if not hidden:
+        cores = [v for v in layers(ds) if v.startswith("policy_core_") and v.endswith("_h") and v[12:-2].isdigit()]
+        hidden = sorted(cores, key=lambda n: int(n[12:-2]))
     if not hidden:
         raise VnlError("the recording has no policy hidden layer; choose one with --layer")
     return hidden[-1]
@@ -50,7 +55,7 @@ def last_hidden_layer(ds: Any) -> str:
 def default_layer(ds: Any) -> str:
     """The population decoded by default: the policy's last hidden layer, else the first layer (a
     lab's `units`, read from an NWB file)."""
-    if any(v.startswith("policy_hidden_") for v in layers(ds)) or not layers(ds):
+    if any(v.startswith(("policy_hidden_", "policy_core_")) for v in layers(ds)) or not layers(ds):
         return last_hidden_layer(ds)
     return layers(ds)[0]
 

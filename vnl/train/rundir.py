@@ -128,7 +128,10 @@ def checkpoint_bytes(config: TrainConfig, env: Env) -> int:
     per_env = sum(int(np.prod(x.shape)) * x.dtype.itemsize for x in jax.tree.leaves(state))
     network = recurrent.make_networks(config, env)
     key = jax.ShapeDtypeStruct((2,), np.uint32)
-    params = jax.eval_shape(lambda k: (network.policy_network.init(k), network.value_network.init(k)), key)
+    if recurrent.is_recurrent(config.network):
+        params = jax.eval_shape(network.init, key)
+    else:
+        params = jax.eval_shape(lambda k: (network.policy_network.init(k), network.value_network.init(k)), key)
     n_params = sum(int(np.prod(x.shape)) * x.dtype.itemsize for x in jax.tree.leaves(params))
     return 2 * config.ppo.num_envs * per_env + 4 * n_params
 

@@ -144,8 +144,13 @@ def load_parent(config: TrainConfig) -> Parent:
 def _check_networks(parent: Parent, config: TrainConfig) -> None:
     a, b = parent.config, config
     fields = ("policy_hidden_layer_sizes", "value_hidden_layer_sizes", "activation", "distribution_type", "core")
+    fields += ("architecture",)
     if b.network.core is not None:
         fields += ("core_size",)
+    if b.network.architecture == "merel":
+        fields += ("encoder_hidden_layer_sizes", "policy_core_sizes")
+        if b.vision.enabled:
+            fields += ("resnet_channels", "resnet_blocks", "resnet_features")
     if b.network.distribution_type == "normal":
         fields += ("noise_std_type",)
     if b.vision.enabled:
