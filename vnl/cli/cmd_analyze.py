@@ -1,5 +1,5 @@
 """`vnl analyze RECORDING`: one of the analyses of `vnl.neuro.registry.ANALYSES` (PCA over time,
-encoding, decoding, behavioural states) of a recording (vnl's NetCDF, or an NWB file: vnl's export
+encoding, decoding, behavioural states, rhythmic units) of a recording (vnl's NetCDF, or an NWB file: vnl's export
 or a lab's session with units and behaviour), each a PNG and a JSON file."""
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from vnl.recording import formats
 
 def add(sub: Any) -> None:
     p = options.command(
-        sub, "analyze", "PCA, encoding, decoding or behavioural states of a recording, as PNG + JSON", run, check,
+        sub, "analyze", "PCA, encoding, decoding, behavioural states, embedding or rhythmic units of a recording, as PNG + JSON", run, check,
         mujoco=False,
     )  # fmt: skip
     p.add_argument(
@@ -31,8 +31,9 @@ def add(sub: Any) -> None:
         help=f"{methods}. All but pca are cross-validated by episode and reported against --control",
     )
     p.add_argument("--layer", help="e.g. policy_hidden_1 (pca: the first policy hidden layer; decoding: the last; "
-                   "encoding and states: every layer)")  # fmt: skip
-    p.add_argument("--color", help="pca: per-step variable to colour by (default: x_velocity)")
+                   "encoding, states and rhythm: every layer)")  # fmt: skip
+    p.add_argument("--color", help="pca and embedding: per-step variable to colour by (default: x_velocity; "
+                   "embedding: forward_speed)")  # fmt: skip
     p.add_argument(
         "--target",
         default="forward_speed",
@@ -42,7 +43,7 @@ def add(sub: Any) -> None:
     p.add_argument("--features", help="encoding and states: comma-separated behaviour variables (encoding's "
                    "default: joint_angle,joint_velocity,com_velocity,forward_speed,foot_contact; an NWB file's: "
                    "all its behaviour)")  # fmt: skip
-    p.add_argument("--states", type=options.integer(2, 20), default=4, help="states: how many (default 4)")
+    p.add_argument("--states", type=options.integer(2, 20), default=4, help="states and embedding: how many (default 4)")
     p.add_argument("--segmentation", choices=("hmm", "kmeans"), default="hmm",
                    help="states: a sticky Gaussian HMM (default) or k-means")  # fmt: skip
     p.add_argument("--control", choices=("shift", "shuffle"), default="shift",
@@ -65,8 +66,8 @@ def method_options(args: argparse.Namespace) -> registry.Options:
 
 def check(args: argparse.Namespace) -> None:
     checks.input_file(args.recording, "recording")
-    if args.method != "pca" and args.color:
-        raise VnlError("--color colours the PCA; use it with --method pca")
+    if args.method not in ("pca", "embedding") and args.color:
+        raise VnlError("--color colours the PCA or the embedding; use it with --method pca or embedding")
     # the default PCA layer's name is read from the recording: its folder is checked now
     _check_outputs(args, args.out or default_out(args))
     checks.recording(args.recording, wants=formats.ANALYSABLE)  # by its content: NWB, another HDF5 file, ...

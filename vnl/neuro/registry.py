@@ -44,6 +44,14 @@ ANALYSES = {  # name -> (module, what it does: the --method help)
     "encoding": ("vnl.neuro.encoding", "ridge from behaviour features to each unit (held-out R² per unit, per layer)"),
     "decoding": ("vnl.neuro.decoding", "--target from --layer's units (held-out R²)"),
     "states": ("vnl.neuro.states", "segment the kinematics into --states states and average each layer per state"),
+    "embedding": (
+        "vnl.neuro.embedding",
+        "the behaviour's time-frequency content clustered into --states behaviours and mapped by t-SNE",
+    ),
+    "rhythm": (
+        "vnl.neuro.rhythm",
+        "units oscillating with the gait: spectral index at the feet's frequency, phase locking against --control",
+    ),
 }
 
 MEASURES = {  # name -> (module, what it does: the --measure help)
