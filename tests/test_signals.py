@@ -41,6 +41,42 @@ def test_a_stop_request_cuts_interruptible_work_at_once_and_leaves_it_running():
     assert not signals.abandoned()
 
 
+def _blocked_in_xla(seconds: float):
+    """A compiled program that holds the calling thread in XLA for `seconds`: its host callback
+    sleeps, as a training epoch holds it while MuJoCo C physics steps."""
+    import jax
+    import jax.numpy as jp
+    import numpy as np
+
+    def host(x):
+        time.sleep(seconds)
+        return np.asarray(x)
+
+    f = jax.jit(lambda x: jax.pure_callback(host, jax.ShapeDtypeStruct((), jp.float32), x))
+    return lambda: jax.block_until_ready(f(jp.float32(1.0)))
+
+
+def test_a_second_ctrl_c_during_a_training_epoch_aborts_at_once():
+    """While an epoch runs (the main thread would wait inside XLA, where no Python signal handler
+    runs), the first SIGINT is acknowledged and lets the epoch finish; the second aborts within
+    seconds, leaving the epoch to be dropped with the process."""
+    stop = StopRequest()
+    with stop.installed():
+        for delay in (0.5, 1.0):
+            threading.Timer(delay, lambda: os.kill(os.getpid(), signal.SIGINT)).start()
+        t = time.time()
+        with pytest.raises(KeyboardInterrupt):
+            stop.responsive(_blocked_in_xla(20.0), "training")
+        assert time.time() - t < 5.0
+        assert stop.requested.is_set() and signals.abandoned()
+    # One request alone does not cut the epoch: it runs to its end and returns its result.
+    stop = StopRequest()
+    with stop.installed():
+        threading.Timer(0.3, lambda: os.kill(os.getpid(), signal.SIGINT)).start()
+        assert float(stop.responsive(_blocked_in_xla(1.0), "training")) == 1.0
+        assert stop.requested.is_set()
+
+
 @pytest.mark.slow
 def test_ctrl_c_while_compiling_stops_within_seconds_and_resume_starts_the_run_again(tmp_path):
     """`vnl train` stopped while it compiles exits 130 at once (not at an evaluation that is minutes

@@ -18,6 +18,7 @@ its traceback.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from collections.abc import Sequence
 
@@ -60,6 +61,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         return args.run(args)
     except KeyboardInterrupt:
         print("vnl: interrupted", file=sys.stderr)
+        signals = sys.modules.get("vnl.train.signals")  # imported only by a command that trains
+        if signals is not None and signals.abandoned():  # an epoch left running in XLA: see abandoned
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(130)
         return 130
     except durable.Terminated as e:  # SIGTERM during a write: its temporary file was removed
         print("vnl: terminated (SIGTERM); the file being written was left as it was", file=sys.stderr)

@@ -19,6 +19,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -254,7 +255,7 @@ class Session:
         # the same epoch), since checkpointing is collective.
         stopping = distributed.any_process(self.stop.requested.is_set())
         while step < total and not stopping:
-            state, training_metrics = self.loop.epoch(state)
+            state, training_metrics = self.stop.responsive(partial(self._epoch, state), "training")
             step = self.loop.env_steps(state)
             problem = divergence.find(state, training_metrics)
             if problem is not None:  # every process sees the same parameters, so all stop here
@@ -265,6 +266,10 @@ class Session:
             self._save(step, state, record, force=stopping)
             self._log(record)
         return step < total, state
+
+    def _epoch(self, state: LoopState) -> tuple[LoopState, dict[str, Any]]:
+        """One training epoch, waited for (`StopRequest.responsive` waits for this thread)."""
+        return jax.block_until_ready(self.loop.epoch(state))
 
     def _first_state(self) -> LoopState:
         """The restored state, or a fresh one evaluated and checkpointed at step 0; compiled. Until

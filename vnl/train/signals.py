@@ -28,14 +28,14 @@ POLL_SECONDS = 0.1
 """How often `interruptible` looks for a stop request while its work runs."""
 
 
-_abandoned: list[threading.Thread] = []
+_abandoned: list[threading.Event] = []  # each set when its abandoned work ends
 
 
 def abandoned() -> bool:
     """Whether work cut by a stop request (`StopRequest.interruptible`) still runs in a worker
     thread: a process that ends now should end with `os._exit` (the CLI does), since Python's
     shutdown would stop that thread inside XLA's C++ code and abort the process."""
-    return any(t.is_alive() for t in _abandoned)
+    return not all(done.is_set() for done in _abandoned)
 
 
 class CompileInterrupted(KeyboardInterrupt):
@@ -122,28 +122,55 @@ class StopRequest:
         request; raises `CompileInterrupted(what)` within `POLL_SECONDS` of a SIGINT/SIGTERM,
         leaving the worker to be dropped with the process. Work that must not be cut (a write)
         never goes here. Outside the main thread, or before `installed`, it simply runs `work`."""
-        main = threading.current_thread() is threading.main_thread()
-        if not (self._installed and self.abort_on_second and main):
+        if not self._threaded():
             return work()  # several processes stop together at an evaluation, never one alone here
         if self.requested.is_set():
             raise CompileInterrupted(what)
+        return self._in_worker(work, what, cut=True)
+
+    def responsive(self, work: Callable[[], T], what: str) -> T:
+        """`work()` (a training epoch) in a worker thread while this (main) thread waits for it,
+        so that signals are answered as they come: XLA holds the thread that waits for a program
+        in C++, where no Python signal handler runs, for as long as an epoch lasts (minutes on a
+        busy CPU), and a Ctrl-C was neither acknowledged nor able to abort until it ended. A first
+        request still stops the run at the next evaluation (the work is not cut); a second Ctrl-C
+        raises KeyboardInterrupt here at once, leaving the work to be dropped with the process
+        (`abandoned`). Outside the main thread, or before `installed`, it simply runs `work`."""
+        return self._in_worker(work, what, cut=False) if self._threaded() else work()
+
+    def _threaded(self) -> bool:
+        main = threading.current_thread() is threading.main_thread()
+        return bool(self._installed and self.abort_on_second and main)
+
+    def _in_worker(self, work: Callable[[], T], what: str, cut: bool) -> T:
+        """`work()` in a worker thread, this thread polling it; with `cut`, a stop request raises
+        `CompileInterrupted(what)`; whatever this thread raises leaves the worker abandoned."""
         outcome: dict[str, Any] = {}
+        # Not `Thread.is_alive`: a join cut by a signal handler's exception marks the thread
+        # stopped while it runs on (CPython's bpo-45274 handling).
+        done = threading.Event()
 
         def run() -> None:
             try:
                 outcome["value"] = work()
             except BaseException as e:  # noqa: BLE001 - handed to the main thread below
                 outcome["error"] = e
+            finally:
+                done.set()
 
         worker = threading.Thread(target=run, name=f"vnl: {what}", daemon=True)
-        before, self._during = self._during, what
+        before = self._during
+        if cut:
+            self._during = what
         try:
             worker.start()
-            while worker.is_alive():
-                worker.join(POLL_SECONDS)
-                if self.requested.is_set() and worker.is_alive():
-                    _abandoned.append(worker)
+            while not done.wait(POLL_SECONDS):
+                if cut and self.requested.is_set():
                     raise CompileInterrupted(what)
+        except BaseException:
+            if not done.is_set():
+                _abandoned.append(done)
+            raise
         finally:
             self._during = before
         if "error" in outcome:
