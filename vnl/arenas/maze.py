@@ -27,9 +27,10 @@ Where this differs from labmaze's generator (`labmaze.RandomMaze`, C++) and why:
   cell connected. Room sizes, positions on odd cells, one wall between rooms, and the spawn and
   target counts per room are labmaze's (room sizes 4-5 give rooms of 3 and 5 cells, as its mazes
   show).
-- labmaze places rooms by rejection with its own retry count; here each of `max_rooms` rooms gets
-  `room_tries` random placements and keeps the first that fits, so fewer rooms are placed when the
-  grid is crowded (with the defaults: 3 or 4 rooms, as labmaze). The first room always fits.
+- labmaze places rooms with its own rejection scheme; here each of `max_rooms` rooms gets
+  `room_tries` random placements and keeps the first that fits, in `ROOM_LAYOUTS` independent
+  layouts of which the one with the most rooms is kept. Over 200 mazes with the defaults: 2, 3, 4
+  rooms in 0.5%, 35.5%, 64% (labmaze: 3%, 28.5%, 68.5%), ~61 free cells of 121 (labmaze: ~59).
 """
 
 from __future__ import annotations
@@ -45,6 +46,7 @@ from vnl.arenas import base as arena_base
 from vnl.errors import VnlError
 
 HIDDEN_Z = -50.0  # where unused wall boxes and collected targets wait
+ROOM_LAYOUTS = 4  # room layouts drawn per maze; the one with the most rooms is kept
 
 
 @dataclasses.dataclass(frozen=True)
@@ -137,6 +139,15 @@ def _odd(n: int) -> int:
 
 
 def _place_rooms(rng: jax.Array, params: MazeParams) -> tuple[jax.Array, jax.Array]:
+    """`ROOM_LAYOUTS` room layouts drawn by `_try_rooms`; the one with the most rooms (the first
+    of those) is kept: one layout alone leaves a single room in ~5% of mazes (a 5-cell room in
+    the middle blocks the rest), labmaze never does."""
+    rooms, valid = jax.vmap(lambda k: _try_rooms(k, params))(jax.random.split(rng, ROOM_LAYOUTS))
+    best = jp.argmax(jp.sum(valid, axis=1))
+    return rooms[best], valid[best]
+
+
+def _try_rooms(rng: jax.Array, params: MazeParams) -> tuple[jax.Array, jax.Array]:
     """Rooms placed by rejection: (max_rooms, 4) int32 (top, left, height, width) and (max_rooms,)
     bool. Sides are odd, corners on odd cells, rooms one wall cell apart at least."""
     p = params

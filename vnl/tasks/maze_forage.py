@@ -33,13 +33,14 @@ same scripted visits):
   within a control step.
 - **Touch detection.** dm_control's `TargetSphere` activates when MuJoCo's contact list holds the
   target's geom against any geom, after each 1-ms physics step (its margin -2r and gap 2r: listed
-  on overlap, no force). vnl's targets are mocap spheres outside the physics (no contact pairs
-  for MJX) and a touch is an overlap computed in JAX (`vnl.tasks.touch`): a colliding geom of the
-  walker within `target_radius` of the centre, checked once per 20-ms control step on the state
-  at its end; a touch that begins and ends within one control step is missed. vnl's colliding
-  geoms are its rat's ground-contact set (feet, hands, torso, pelvis, skull; `contacts`) with
-  their MJX capsule proxies, dm_control's every rat geom; dm_control's MuJoCo drops some of them
-  in its mid-phase (see `vnl.tasks.two_touch`).
+  on overlap, no force); every one of its rat's 100 geoms collides with it. vnl's targets are
+  mocap spheres outside the physics (no contact pairs for MJX) and a touch is an overlap computed
+  in JAX (`vnl.tasks.touch`): any of the walker's geoms, in their own shapes (the same 100 for
+  the rat, whether or not they collide in vnl's physics; not the MJX proxies), within
+  `target_radius` of the centre. It is checked once per 20-ms control step, on the state at its
+  end: a touch that begins and ends within one control step is missed. MuJoCo's mid-phase drops
+  some shallow overlaps of bodies with several geoms (the fingers', see `vnl.tasks.two_touch`);
+  vnl counts them.
 - **A blind rat.** dm_control's rat finds targets and walls with its 64x64 egocentric camera;
   vnl's observes the targets' positions, the walls around it and a compass. With `--vision` its
   camera sees the walls (visual boxes) and the targets.
@@ -108,6 +109,8 @@ class MazeForage(WalkerTask):
     """See the module docstring. `step` places the collision window, runs the physics, then
     `react` (touches, rewards, measures, observation): tests drive `react` with scripted states."""
 
+    new_episode_on_reset = True  # training's auto-reset draws a new maze (vnl.envs.wrappers), as dm_control
+
     def __init__(self, config: MazeForageConfig) -> None:
         p = config.maze
         walker = build_walker(config)
@@ -129,11 +132,21 @@ class MazeForage(WalkerTask):
         self._params = p
         self._walls = self._mocap_ids(model, [f"wall_{i}" for i in range(p.n_boxes)])
         self._targets = self._mocap_ids(model, [f"target_{i}" for i in range(p.n_targets)])
-        self._touch = TouchGeoms.of(model, [int(b) for b in self._walker_bodies])
+        # Every geom of the walker as dm_control has it (its rat's 100 geoms all collide with a
+        # target), the MJX proxies left out: their originals, visual-only in vnl, stand for them.
+        proxies = {f"{r.geom}_proxy" for r in report.replacements}
+        walker_bodies = set(self._walker_bodies.tolist())
+        ids = [
+            g for g in range(model.ngeom) if model.geom_bodyid[g] in walker_bodies and model.geom(g).name not in proxies
+        ]
+        self._touch = TouchGeoms.of_geoms(model, ids, "the walker")
+        colliding = [g for g in ids if model.geom_contype[g] or model.geom_conaffinity[g]]
+        self.reach = self._reach(
+            model, np.asarray(colliding + [g for g in range(model.ngeom) if model.geom(g).name in proxies], int)
+        )
         hidden = np.zeros((model.nmocap, 3))
         hidden[:, 2] = mazes.HIDDEN_Z
         self._spawn_z = spawn_height(model, 0.0, 0.0, mocap_pos=hidden)
-        self.reach = self._reach(model)
         limit = p.window * p.cell_size
         if self.reach + MAX_SPEED * self.dt > limit:
             raise VnlError(
@@ -146,12 +159,11 @@ class MazeForage(WalkerTask):
     def _mocap_ids(model: mujoco.MjModel, names: list[str]) -> np.ndarray:
         return np.asarray([model.body_mocapid[model.body(n).id] for n in names], dtype=int)
 
-    def _reach(self, model: mujoco.MjModel) -> float:
-        """How far (m) the walker's colliding geoms reach from its root in the default pose: the
+    def _reach(self, model: mujoco.MjModel, ids: np.ndarray) -> float:
+        """How far (m) the geoms `ids` reach from the walker's root in the default pose: the
         largest geom centre distance plus bounding radius."""
         data = mujoco.MjData(model)
         mujoco.mj_forward(model, data)
-        ids = self._touch.ids
         return float(
             np.max(np.linalg.norm(data.geom_xpos[ids] - data.xpos[self._root], axis=-1) + model.geom_rbound[ids])
         )
