@@ -21,7 +21,8 @@ world-aligned, rows from +y to -y, columns from -x to +x; cells past the grid co
 `cell_offset` (the root's offset from its cell's centre, world x and y, in cells).
 
 Task measures (`metrics["measure/..."]`, summed over an episode): `targets_collected`, and
-`maze_seen`, the fraction of the maze's free cells the rat's root has been in.
+`maze_seen`, the fraction of the maze's free cells the rat's root has been in at the end of a
+control step (each step adds the cells it is the first to reach).
 
 Where vnl differs from dm_control, and why (tests/test_maze_forage.py drives both through the
 same scripted visits):
@@ -44,6 +45,9 @@ same scripted visits):
 - **A blind rat.** dm_control's rat finds targets and walls with its 64x64 egocentric camera;
   vnl's observes the targets' positions, the walls around it and a compass. With `--vision` its
   camera sees the walls (visual boxes) and the targets.
+- **The end.** When every target is collected dm_control ends the episode with discount 1 (a
+  success, not a failure: in dm_env's terms the last state keeps its value); vnl's `done` ends it
+  and PPO does not bootstrap past it: nothing is left to earn, so the last state's value is 0.
 - **Physics and spawn** as vnl's other rat tasks: 2 ms x 10 physics steps (dm_control: 1 ms x 20),
   the rat spawned at the lowest height where it touches nothing, joints ±0.01 rad of noise, a
   uniform heading (dm_control's rotation_bias_factor 0 draws it uniformly too).
@@ -140,10 +144,13 @@ class MazeForage(WalkerTask):
             g for g in range(model.ngeom) if model.geom_bodyid[g] in walker_bodies and model.geom(g).name not in proxies
         ]
         self._touch = TouchGeoms.of_geoms(model, ids, "the walker")
-        colliding = [g for g in ids if model.geom_contype[g] or model.geom_conaffinity[g]]
-        self.reach = self._reach(
-            model, np.asarray(colliding + [g for g in range(model.ngeom) if model.geom(g).name in proxies], int)
-        )
+        # The walls must stop what collides in vnl's physics: the proxies and the colliding originals.
+        colliding = [
+            g
+            for g in range(model.ngeom)
+            if model.geom_bodyid[g] in walker_bodies and (model.geom_contype[g] or model.geom_conaffinity[g])
+        ]
+        self.reach = self._reach(model, np.asarray(colliding, int))
         hidden = np.zeros((model.nmocap, 3))
         hidden[:, 2] = mazes.HIDDEN_Z
         self._spawn_z = spawn_height(model, 0.0, 0.0, mocap_pos=hidden)
@@ -187,13 +194,13 @@ class MazeForage(WalkerTask):
         )
         mocap = mocap.at[self._targets].set(self.target_positions(layout, collected))
         data = self.forward(self.make_data(qpos=qpos, qvel=qvel, mocap_pos=mocap))
-        visited = jp.zeros((p.y_cells, p.x_cells), bool).at[spawn[0], spawn[1]].set(True)
+        visited = jp.zeros((p.y_cells, p.x_cells), bool)  # the steps count the cells, the first one too
         zero = jp.zeros((), jp.float32)
         info = {"rng": rng, "maze": layout, "collected": collected, "visited": visited}
         metrics = {
             "reward/targets": zero,
             "measure/targets_collected": zero,
-            "measure/maze_seen": 1.0 / self.free_cells(layout),
+            "measure/maze_seen": zero,
             "targets_left": jp.sum(~collected).astype(jp.float32),
             "physics_nan": zero,
         }
