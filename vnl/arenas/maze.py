@@ -20,13 +20,13 @@ compiled MJX model cannot change its geoms. Here the maze is data, not model:
 
 Where this differs from labmaze's generator (`labmaze.RandomMaze`, C++) and why:
 
-- labmaze leaves some odd cells walled (its mazes show 3x1 blocks of wall in corners, e.g. seed
-  1's first maze with these parameters) and may add extra openings; here every odd cell is free
-  and the corridors form a tree (one path between any two free cells outside rooms): a fixed-size
-  JAX loop over the 2·n·(n-1) edges of the odd-cell grid, the simplest generator with every free
-  cell connected. Room sizes, positions on odd cells, one wall between rooms, and the spawn and
-  target counts per room are labmaze's (room sizes 4-5 give rooms of 3 and 5 cells, as its mazes
-  show).
+- labmaze leaves some odd cells walled (e.g. cell (1, 1) of the first maze of
+  `labmaze.RandomMaze(height=11, width=11, ..., random_seed=1)` with these parameters); here
+  every odd cell is free and the corridors form a tree (one path between any two free cells
+  outside rooms): a fixed-size JAX loop over the 2·n·(n-1) edges of the odd-cell grid, the
+  simplest generator with every free cell connected. Room sizes, positions on odd cells, one wall
+  between rooms, and the spawn and target counts per room are labmaze's (room sizes 4-5 give
+  rooms of 3 and 5 cells, as its mazes show).
 - labmaze places rooms with its own rejection scheme; here each of `max_rooms` rooms gets
   `room_tries` random placements and keeps the first that fits, in `ROOM_LAYOUTS` independent
   layouts of which the one with the most rooms is kept. Over 200 mazes with the defaults: 2, 3, 4
