@@ -13,7 +13,7 @@ from typing import Any
 
 from vnl import typed_config as config_lib
 from vnl.errors import VnlError
-from vnl.tasks import cue_memory, escape_bowl, find_target, run, run_gaps, two_touch
+from vnl.tasks import cue_memory, escape_bowl, find_target, maze_forage, run, run_gaps, two_touch
 from vnl.tasks.contract import Env
 from vnl.vision.env import VisionConfig, VisionEnv
 
@@ -63,6 +63,11 @@ _REGISTRY: dict[str, Entry] = {
         two_touch.TwoTouch,
         two_touch.RODENT_TWO_TOUCH,
         "The rat touches an orb, waits, and touches it again 0.7-0.9 s after (dm_control's two-touch task).",
+    ),
+    "rodent_maze_forage": Entry(
+        maze_forage.MazeForage,
+        maze_forage.RODENT_MAZE_FORAGE,
+        "The rat collects the targets in a maze with rooms redrawn every episode (dm_control's maze forage).",
     ),
     "ant_run_gaps": Entry(
         run_gaps.RunGaps,

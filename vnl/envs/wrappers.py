@@ -25,7 +25,16 @@ EPISODE_KEYS = ("steps", "truncation")
 class AutoResetWrapper(brax_training.Wrapper):
     """Resets finished episodes to their first state (the state drawn at `reset`): physics data,
     observation and the task's own `info` entries (a Brax pipeline's state, the furthest point
-    reached, ...)."""
+    reached, ...).
+
+    An env whose class sets `new_episode_on_reset = True` (a maze redrawn every episode) gets a
+    new first state instead: at a step where any env's episode ended, the batch is reset with keys
+    folded from each env's `info["rng"]` and the finished envs take theirs; other steps pay nothing
+    (`lax.cond`). Replaying the first state would give each env one maze for the whole run."""
+
+    def __init__(self, env: Any) -> None:
+        super().__init__(env)
+        self._redraw = bool(getattr(env.unwrapped, "new_episode_on_reset", False))
 
     def reset(self, rng: jax.Array) -> State:
         state = self.env.reset(rng)
@@ -51,9 +60,19 @@ class AutoResetWrapper(brax_training.Wrapper):
                 done = jp.reshape(done, [first.shape[0]] + [1] * (first.ndim - 1))
             return jp.where(done, first, current)
 
-        data = jax.tree.map(where_done, state.info["first_data"], state.data)
-        obs = jax.tree.map(where_done, state.info["first_obs"], state.obs)
-        first = state.info["first_info"]
+        first_data, first_obs, first = state.info["first_data"], state.info["first_obs"], state.info["first_info"]
+        if self._redraw:
+
+            def fresh(_: None) -> tuple[Any, Any, dict]:
+                keys = jax.vmap(jax.random.fold_in, in_axes=(0, None))(state.info["rng"], 1)
+                new = self.env.reset(keys)
+                return new.data, new.obs, {k: new.info[k] for k in first}
+
+            first_data, first_obs, first = jax.lax.cond(
+                jp.any(state.done), fresh, lambda _: (first_data, first_obs, first), None
+            )
+        data = jax.tree.map(where_done, first_data, state.data)
+        obs = jax.tree.map(where_done, first_obs, state.obs)
         state.info.update({k: jax.tree.map(where_done, v, state.info[k]) for k, v in first.items()})
         return state.replace(data=data, obs=obs)
 

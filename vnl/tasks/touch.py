@@ -55,9 +55,14 @@ class TouchGeoms:
             for g in range(model.ngeom)
             if int(model.geom_bodyid[g]) in bodies and (model.geom_contype[g] or model.geom_conaffinity[g])
         ]
-        names = ", ".join(model.body(b).name for b in bodies)
+        return TouchGeoms.of_geoms(model, ids, "the bodies " + ", ".join(model.body(b).name for b in bodies))
+
+    @staticmethod
+    def of_geoms(model: mujoco.MjModel, ids: list[int], names: str) -> TouchGeoms:
+        """The geoms `ids` (their owner called `names` in messages), colliding or not. Raises
+        `VnlError` when there are none or one is a shape `distance` cannot measure."""
         if not ids:
-            raise VnlError(f"the bodies {names} have no colliding geoms to touch with")
+            raise VnlError(f"{names}: no colliding geoms to touch with")
         for g in ids:
             if int(model.geom_type[g]) not in SHAPES:
                 raise VnlError(
