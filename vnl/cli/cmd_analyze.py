@@ -17,8 +17,9 @@ from vnl.recording import formats
 
 def add(sub: Any) -> None:
     p = options.command(
-        sub, "analyze", "PCA, encoding, decoding, behavioural states, embedding or rhythmic units of a recording, as PNG + JSON", run, check,
-        mujoco=False,
+        sub, "analyze",
+        "PCA, encoding, decoding, behavioural states, embedding or rhythmic units of a recording, as PNG + JSON",
+        run, check, mujoco=False,
     )  # fmt: skip
     p.add_argument(
         "recording", help="a recording written by `vnl record` (NetCDF), or an NWB file with units and behaviour"
@@ -43,7 +44,8 @@ def add(sub: Any) -> None:
     p.add_argument("--features", help="encoding and states: comma-separated behaviour variables (encoding's "
                    "default: joint_angle,joint_velocity,com_velocity,forward_speed,foot_contact; an NWB file's: "
                    "all its behaviour)")  # fmt: skip
-    p.add_argument("--states", type=options.integer(2, 20), default=4, help="states and embedding: how many (default 4)")
+    p.add_argument("--states", type=options.integer(2, 20), default=4,
+                   help="states and embedding: how many (default 4)")  # fmt: skip
     p.add_argument("--segmentation", choices=("hmm", "kmeans"), default="hmm",
                    help="states: a sticky Gaussian HMM (default) or k-means")  # fmt: skip
     p.add_argument("--control", choices=("shift", "shuffle"), default="shift",
