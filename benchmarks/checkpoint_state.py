@@ -16,6 +16,9 @@ first (auto-reset) state, for 3 steps through an episode's end; the outputs must
 could instead be recomputed at load: `mjx_physics.sync` (and `mjx.forward`) run in their own
 program on the saved state, compared bit for bit with the saved values.
 
+`--compressed`: the bytes per env of a checkpoint's (compact) env arrays after 50 random steps of
+64 envs, written plain (`np.savez`) and compressed (`np.savez_compressed`, what checkpoints use).
+
 `--sizes`: a checkpoint's bytes for the `gpu` and `cpu` presets of rodent_run, humanoid_run and
 ant_run, with all of the env states (as before issue 57) and compact, from shapes only
 (`jax.eval_shape`, nothing compiled).
@@ -24,6 +27,7 @@ ant_run, with all of the env states (as before issue 57) and compact, from shape
     .venv/bin/python benchmarks/checkpoint_state.py --reads --impl c      # every env, MuJoCo C
     .venv/bin/python benchmarks/checkpoint_state.py --recompute rodent_run
     .venv/bin/python benchmarks/checkpoint_state.py --sizes
+    .venv/bin/python benchmarks/checkpoint_state.py --compressed rodent_run humanoid_run ant_run
 """
 
 from __future__ import annotations
@@ -274,6 +278,34 @@ def _overrides(pairs: list[str]) -> dict[str, Any]:
     return out
 
 
+def compressed(name: str, impl: str, batch: int = 64, steps: int = 50) -> dict[str, Any]:
+    """A checkpoint's env arrays of `batch` envs after `steps` random training steps, compact, as
+    `np.savez` and `np.savez_compressed` write them: bytes per env."""
+    import io
+
+    env = registry.make(name, impl=impl)
+    wrapped = wrap_for_training(env, episode_length=1000)
+
+    @jax.jit
+    def run(key: jax.Array) -> Any:
+        k0, k1 = jax.random.split(key)
+        state = wrapped.reset(jax.random.split(k0, batch))
+        actions = jax.random.uniform(k1, (steps, batch, env.action_size), minval=-1, maxval=1)
+        return jax.lax.scan(lambda s, a: (wrapped.step(s, a), None), state, actions)[0]
+
+    state = jax.device_get(run(jax.random.PRNGKey(0)))
+    dropped = set(physics.derived_paths(state, env.previous_state_reads))
+    arrays = {k: np.asarray(x) for k, x in _paths(state).items() if k not in dropped}
+    out: dict[str, Any] = {"env": name, "impl": impl, "batch": batch, "steps": steps}
+    out["arrays"] = sum(x.nbytes for x in arrays.values()) // batch
+    for label, write in (("savez", np.savez), ("savez_compressed", np.savez_compressed)):
+        buffer = io.BytesIO()
+        write(buffer, **arrays)
+        out[label] = len(buffer.getvalue()) // batch
+    out["ratio"] = round(out["savez_compressed"] / out["savez"], 2)
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     mode = parser.add_mutually_exclusive_group(required=True)
@@ -281,6 +313,7 @@ def main() -> None:
     mode.add_argument("--joint", nargs="*", metavar="ENV", help="envs (default: every registered env)")
     mode.add_argument("--recompute", nargs="+", metavar="ENV")
     mode.add_argument("--sizes", action="store_true")
+    mode.add_argument("--compressed", nargs="+", metavar="ENV")
     parser.add_argument("--impl", choices=("jax", "c"), default="jax")
     parser.add_argument("--vision", action="store_true", help="--reads: the envs with their camera")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="an env config override")
@@ -291,12 +324,15 @@ def main() -> None:
     header = {"date": datetime.date.today().isoformat(), "argv": sys.argv[1:], "jax": jax.__version__}
     if args.sizes:
         results = sizes()
-    for kind, envs in (("reads", args.reads), ("joint", args.joint), ("recompute", args.recompute)):
+    kinds = (("reads", args.reads), ("joint", args.joint), ("recompute", args.recompute))
+    for kind, envs in (*kinds, ("compressed", args.compressed)):
         for name in registry.names() if envs == [] else envs or []:
             if kind == "reads":
                 results.append(reads(name, args.impl, args.vision, overrides))
             elif kind == "joint":
                 results.append(joint(name, args.impl, overrides))
+            elif kind == "compressed":
+                results.append(compressed(name, args.impl))
             else:
                 results.append(recompute(name))
             print(json.dumps(_brief(results[-1])), flush=True)

@@ -3,8 +3,10 @@ reads, and `--resume` through it is still bit-exact; a full checkpoint of an ear
 too; `rundir.checkpoint_bytes` counts what is written; each task declares every derived field its
 step reads of a previous state (`Env.previous_state_reads`)."""
 
+import io
 import shutil
 import sys
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -136,6 +138,18 @@ def test_the_size_estimate_counts_what_a_checkpoint_holds(reference, full_checkp
     rat = train_config.build("rodent_run", "gpu")
     full, compact = (rundir.checkpoint_bytes(rat, rat.make_env(), compact=c) for c in (False, True))
     assert full > 400 * 2**20 and compact < 24 * 2**20, (full / 2**20, compact / 2**20)
+
+
+def test_the_training_state_is_written_compressed(reference):
+    """train_state.npz is deflated (the zeros of the applied forces and of the first states'
+    controls take no room): smaller than `np.savez` writes the same arrays."""
+    path = checkpoint.step_dir(reference, K) / checkpoint.TRAIN_STATE
+    with zipfile.ZipFile(path) as z:
+        assert all(e.compress_type == zipfile.ZIP_DEFLATED for e in z.infolist())
+    with np.load(path) as z:
+        plain = io.BytesIO()
+        np.savez(plain, **{k: z[k] for k in z.files})
+    assert path.stat().st_size < 0.9 * len(plain.getvalue()), (path.stat().st_size, len(plain.getvalue()))
 
 
 def _wrapped_state(env):

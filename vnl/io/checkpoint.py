@@ -9,7 +9,7 @@ Each checkpoint directory holds:
   array per leaf, what `vnl train --resume` continues from. Of each physics state it holds what
   the next step reads (the integration state and the fields the task reads of a previous state:
   `vnl.physics.derived_paths`): a rat's env state on MJX is 8 KiB instead of 205; checkpoints
-  before format 2 hold all of it, and load as they are;
+  before format 2 hold all of it, and load as they are. Compressed (zip's deflate);
 - `meta.json`: the step, the epoch length, the wall time so far, the metrics record of that
   evaluation, the versions of vnl and its libraries that wrote it and the `format` of meta.json
   (`META_FORMAT`).
@@ -182,7 +182,7 @@ def save(
         checkpointer.save((tmp / PARAMS).absolute(), params, save_args=orbax_utils.save_args_from_target(params))
         if train_state is not None:
             with open(tmp / TRAIN_STATE, "wb") as f:
-                np.savez(f, **train_state)
+                np.savez_compressed(f, **train_state)  # env states halve: docs/experiments/compact-checkpoints.md
         with open(tmp / META, "w") as f:
             json.dump({"step": int(step), "format": META_FORMAT, **(meta or {})}, f)
         durable.fsync_tree(tmp)  # orbax's files too: all on disk before the step name points at them
