@@ -99,7 +99,7 @@ if POINT:
             point("orbax")
             return self.real.save(*args, **kwargs)
     checkpoint._checkpointer = lambda: Paused(make())
-    before(np, "savez", "npz")
+    before(np, "savez_compressed", "npz")
     class Json:
         loads, load, dumps = json.loads, json.load, json.dumps
         def dump(self, *args, **kwargs):

@@ -36,12 +36,12 @@ from vnl.train import config as tc, trainer
 tiny_env.register()
 compile_cache.enable(sys.argv[3])
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)  # every process after the first loads all
-savez = np.savez
+savez = np.savez_compressed
 def slow_savez(f, **arrays):  # a slow disk: a kill now lands inside the checkpoint write
     savez(f, **arrays)
     print("[test] inside a checkpoint write", flush=True)
     time.sleep(0.25)
-np.savez = slow_savez
+np.savez_compressed = slow_savez
 say = lambda s: print(s, flush=True)
 settings = {{
     "ppo": {{"num_timesteps": 512 * 48, "num_evals": 25}},

@@ -198,6 +198,22 @@ def test_a_blow_up_ends_only_that_envs_episode():
     assert out.data.ctrl[1, 0] == 0 and out.data.ctrl[3, 1] == e.mj_model.actuator_ctrlrange[1, 1]
 
 
+@pytest.mark.slow
+@pytest.mark.xdist_group("ant_run-c")
+def test_every_blow_up_is_reported_not_only_a_simulations_first():
+    """The same blowing-up state stepped again blows up again: MuJoCo's reset after a bad qacc sets
+    its warning count back to 1, which a count compared with the previous call's took for no new
+    warning (the env then went on from the model's default pose)."""
+    e = c_env("ant_run")
+    s, action = mid_episode("ant_run", batch=2)
+    bad = s.replace(data=s.data.replace(qfrc_applied=np.full_like(s.data.qfrc_applied, np.inf)))
+    step = jax.jit(jax.vmap(e.step))
+    for _ in range(3):
+        out = jax.device_get(step(bad, action))
+        np.testing.assert_array_equal(out.metrics["physics_nan"], [1, 1])
+        np.testing.assert_array_equal(out.data.qpos, s.data.qpos)  # kept its last state
+
+
 @pytest.mark.xdist_group("ant_run-c")
 def test_results_do_not_depend_on_the_thread_count():
     """Two envs of one model, 1 and 2 threads, alive at once: each call runs on its own env's

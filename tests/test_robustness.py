@@ -459,7 +459,7 @@ def test_full_disk_fails_before_training(tmp_path, monkeypatch):
 
 def test_disk_full_while_writing_a_checkpoint_keeps_the_last_good_one(tmp_path, monkeypatch):
     cfg = train_config.build("test_point", "tiny", file_values=QUIET)
-    real = np.savez
+    real = np.savez_compressed
     calls = []
 
     def savez(f, **arrays):
@@ -469,7 +469,7 @@ def test_disk_full_while_writing_a_checkpoint_keeps_the_last_good_one(tmp_path, 
             raise OSError(28, "No space left on device")
         return real(f, **arrays)
 
-    monkeypatch.setattr(checkpoint.np, "savez", savez)
+    monkeypatch.setattr(checkpoint.np, "savez_compressed", savez)
     with pytest.raises(VnlError, match=r"step 4,096.*No space left on device.*step 0.*--resume"):
         trainer.train(cfg, tmp_path / "run", say=quiet)
     run = tmp_path / "run"

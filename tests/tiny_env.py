@@ -44,6 +44,8 @@ class PointMass(Env):
         zero = jp.zeros(())
         return State(data, self._obs(data), zero, zero, {"reward/distance": zero, "physics_nan": zero}, {})
 
+    previous_state_reads = ()  # its step reads only qpos and qvel (a compact checkpoint keeps them)
+
     def step(self, state: State, action: jax.Array) -> State:
         # Above `blow_up_above`, a force of 1e39 (inf in float32) is applied: the physics overflows.
         push = jp.where(action[0] > self.config.blow_up_above, jp.float32(jp.inf), 0.0)

@@ -6,7 +6,10 @@ Each checkpoint directory holds:
   `vnl eval`, `vnl render`, `vnl record` and `vnl.load_policy` need;
 - `train_state.npz`: the whole training state (`vnl.ppo.loop.LoopState`: optimizer state,
   params, normalizer, env step count, the training environments' states and PRNG keys), one named
-  array per leaf, what `vnl train --resume` continues from;
+  array per leaf, what `vnl train --resume` continues from. Of each physics state it holds what
+  the next step reads (the integration state and the fields the task reads of a previous state:
+  `vnl.physics.derived_paths`): a rat's env state on MJX is 8 KiB instead of 205; checkpoints
+  before format 2 hold all of it, and load as they are. Compressed (zip's deflate);
 - `meta.json`: the step, the epoch length, the wall time so far, the metrics record of that
   evaluation, the versions of vnl and its libraries that wrote it and the `format` of meta.json
   (`META_FORMAT`).
@@ -59,8 +62,9 @@ _REPLACED = re.compile(r"^\.replaced-(\d{12})$")
 PARAMS = "params"
 TRAIN_STATE = "train_state.npz"
 META = "meta.json"
-META_FORMAT = 1
-"""meta.json's format: 1 adds `format` and `versions` (checkpoints without `format` are 0)."""
+META_FORMAT = 2
+"""meta.json's format: 1 adds `format` and `versions` (checkpoints without `format` are 0); 2: the
+training state's physics states may be compact (a vnl that reads only 1 refuses to resume them)."""
 CHECKED_ARRAYS = (".training.params.", ".training.normalizer_params.")
 """The training-state arrays that must be finite (the networks and the observation normalizer)."""
 VERSIONS = (
@@ -178,7 +182,7 @@ def save(
         checkpointer.save((tmp / PARAMS).absolute(), params, save_args=orbax_utils.save_args_from_target(params))
         if train_state is not None:
             with open(tmp / TRAIN_STATE, "wb") as f:
-                np.savez(f, **train_state)
+                np.savez_compressed(f, **train_state)  # env states halve: docs/experiments/compact-checkpoints.md
         with open(tmp / META, "w") as f:
             json.dump({"step": int(step), "format": META_FORMAT, **(meta or {})}, f)
         durable.fsync_tree(tmp)  # orbax's files too: all on disk before the step name points at them

@@ -19,7 +19,7 @@ import jax
 import mujoco
 
 from vnl.physics import mjx_physics
-from vnl.physics.c_physics import CData, CPhysics, available_cores, resolve_threads
+from vnl.physics.c_physics import STATE, CData, CPhysics, available_cores, resolve_threads
 from vnl.physics.mjx_physics import MjxPhysics
 from vnl.quiet_mjx import mjx
 
@@ -28,7 +28,7 @@ Data = mjx.Data | CData
 Physics = MjxPhysics | CPhysics
 
 __all__ = ["IMPLS", "CData", "CPhysics", "Data", "MjxPhysics", "Physics", "available_cores", "cinert", "make"]
-__all__ += ["resolve_threads", "ten_velocity"]
+__all__ += ["derived_paths", "resolve_threads", "ten_velocity"]
 
 
 def make(mj_model: mujoco.MjModel, impl: str = "jax", threads: int | None = None) -> Physics:
@@ -48,3 +48,28 @@ def ten_velocity(data: Any) -> jax.Array:
 def cinert(data: Any) -> jax.Array:
     """Body inertias in the centre-of-mass frame (nbody, 10) of `data` of any implementation."""
     return data.cinert if isinstance(data, CData) else mjx_physics.cinert(data)
+
+
+def derived_paths(tree: Any, reads: tuple[str, ...] | None) -> list[str]:
+    """The paths (`jax.tree_util.keystr`) of the leaves of every physics state in `tree` that a
+    checkpoint leaves out, e.g. `.info['first_data']._impl.efc_J`: all but the integration state
+    (MJX: `mjx_physics.ALWAYS_KEPT`; MuJoCo C: `c_physics.STATE`) and the fields the task `reads`
+    of a previous state (`Env.previous_state_reads`, names as `data.<name>` gives them: `xpos`,
+    `contact`, `cinert`); none when `reads` is None (unknown), nor of MJX's Warp implementation
+    (not measured): docs/experiments/compact-checkpoints.md."""
+    if reads is None:
+        return []
+    found = []
+    nodes = jax.tree_util.tree_flatten_with_path(tree, is_leaf=lambda x: isinstance(x, Data))[0]
+    for prefix, node in nodes:
+        if isinstance(node, CData):
+            kept = set(STATE) | set(reads)
+        elif isinstance(node, mjx.Data) and isinstance(node._impl, mjx.DataJAX):
+            kept = set(mjx_physics.ALWAYS_KEPT) | set(reads)
+        else:
+            continue
+        for path, _ in jax.tree_util.tree_flatten_with_path(node)[0]:
+            name = jax.tree_util.keystr(path)  # `.xpos`, `._impl.contact.dist`
+            if name.removeprefix(".").removeprefix("_impl.").split(".")[0] not in kept:
+                found.append(jax.tree_util.keystr(prefix) + name)
+    return found

@@ -314,13 +314,16 @@ class CPhysics:
         with _CALL_LOCK:
             t = time.perf_counter()
             batch = self._load(names, inputs)
-            warnings0 = batch.warning[:, _UNSTABLE, 1].copy()
+            # Counted from 0 at every call: MuJoCo's reset after a bad qacc sets the count back to 1, so
+            # a count compared with the last call's missed every blow-up after a row's first.
+            warnings = batch.warning
+            warnings[:, _UNSTABLE, 1] = 0
             failed = np.zeros(batch.nsim, bool)
             try:
                 batch.step(nstep=nstep, stage=mujoco.mjtStage.mjSTAGE_VEL)
             except mj_batch.SimulationError as e:  # those sims kept their state; the others stepped
                 failed[e.ids] = True
-            failed |= (batch.warning[:, _UNSTABLE, 1] > warnings0).any(axis=1)
+            failed |= (batch.warning[:, _UNSTABLE, 1] > 0).any(axis=1)
             failed |= self._write_outputs(batch, outputs)
             outputs[-1].reshape(-1)[...] = failed
             _HOST_SECONDS[0] += time.perf_counter() - t

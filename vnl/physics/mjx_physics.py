@@ -1,4 +1,8 @@
-"""MJX physics (JAX or Warp implementation) behind the interface of `vnl.physics`."""
+"""MJX physics (JAX or Warp implementation) behind the interface of `vnl.physics`.
+
+A checkpoint keeps of each `mjx.Data` the integration state (`ALWAYS_KEPT`) and the fields its task
+reads of a previous state (`vnl.physics.derived_paths` names the rest).
+"""
 
 from __future__ import annotations
 
@@ -8,6 +12,29 @@ import jax
 import jax.numpy as jp
 
 from vnl.quiet_mjx import mjx
+
+INTEGRATION = (
+    "time",
+    "qpos",
+    "qvel",
+    "act",
+    "history",
+    "qacc_warmstart",
+    "plugin_state",
+    "ctrl",
+    "qfrc_applied",
+    "xfrc_applied",
+    "eq_active",
+    "mocap_pos",
+    "mocap_quat",
+    "userdata",
+)
+"""MuJoCo's integration state (`mjSTATE_INTEGRATION`) as mjx.Data fields: all that `mj_step` reads."""
+
+ALWAYS_KEPT = INTEGRATION + ("qfrc_constraint",)
+"""What a checkpoint keeps of every mjx.Data: the integration state, and `qfrc_constraint`, which
+MJX 3.17's step reads when the model has no constraint rows (its `forward` then skips the solver
+and its Euler integrator adds the previous value): docs/experiments/compact-checkpoints.md."""
 
 
 class MjxPhysics:

@@ -43,6 +43,7 @@ from brax.training.agents.ppo import networks as ppo_networks
 from brax.training.agents.ppo import optimizer as ppo_optimizer
 from brax.training.agents.ppo.train import TrainingState
 
+from vnl import physics
 from vnl.envs import randomize
 from vnl.envs.wrappers import wrap_for_training
 from vnl.errors import VnlError
@@ -71,6 +72,11 @@ def _strip_weak_type(tree: Any) -> Any:
 def _unreplicate(tree: Any) -> Any:
     """Device 0's copy of a replicated tree."""
     return jax.tree.map(lambda x: x.addressable_shards[0].data.squeeze(0), tree)
+
+
+def _named(tree: Any) -> dict[str, Any]:
+    """The leaves of `tree` by their path (`jax.tree_util.keystr`)."""
+    return {jax.tree_util.keystr(path): x for path, x in jax.tree_util.tree_flatten_with_path(tree)[0]}
 
 
 def _without_pixels(obs: Any) -> Any:
@@ -307,33 +313,38 @@ class PPOLoop:
             jax.tree.map(lambda x: np.broadcast_to(np.asarray(x), (self.n_devices,) + np.shape(x)), tree)
         )
 
-    def to_arrays(self, state: LoopState, gather: bool = True) -> dict[str, np.ndarray]:
+    def to_arrays(self, state: LoopState, gather: bool = True, compact: bool = True) -> dict[str, np.ndarray]:
         """Host arrays named by their path in the state; env arrays flat over environments,
         (num_envs, ...) — with several processes, gathered from all of them (a collective: every
-        process must call it) unless `gather` is False ((num_envs / processes, ...))."""
-        env = jax.tree.map(lambda x: np.asarray(x).reshape((x.shape[0] * x.shape[1],) + x.shape[2:]), state.env)
+        process must call it) unless `gather` is False ((num_envs / processes, ...)). `compact`
+        leaves out the physics fields the next step recomputes (`physics.derived_paths`)."""
+        dropped = set(physics.derived_paths(state.env, self.task_env.previous_state_reads) if compact else ())
+        env = {
+            ".env" + k: np.asarray(x).reshape((x.shape[0] * x.shape[1],) + x.shape[2:])
+            for k, x in _named(state.env).items()
+            if k not in dropped
+        }
         if gather and self.process_count > 1:
             from jax.experimental import multihost_utils
 
             env = jax.tree.map(np.asarray, multihost_utils.process_allgather(env, tiled=True))
-        host = LoopState(
-            training=jax.device_get(_unreplicate(state.training)),
-            env=env,
-            key=np.asarray(state.key),
-            eval_key=np.asarray(state.eval_key),
-        )
-        leaves = jax.tree_util.tree_flatten_with_path(host)[0]
-        return {jax.tree_util.keystr(path): np.asarray(leaf) for path, leaf in leaves}
+        training = jax.device_get(_unreplicate(state.training))
+        host = LoopState(training=training, env=None, key=np.asarray(state.key), eval_key=np.asarray(state.eval_key))
+        return {**{k: np.asarray(x) for k, x in _named(host).items()}, **env}
 
     def from_arrays(self, arrays: dict[str, np.ndarray]) -> LoopState:
         """The inverse of `to_arrays`; raises `VnlError` if the arrays belong to another setup."""
         template = self.init(0)
-        flat = self.to_arrays(template, gather=False)
+        flat = self.to_arrays(template, gather=False, compact=False)
         if self.process_count > 1:  # the saved env arrays hold every process's envs
             flat = {
                 k: np.broadcast_to(v[:1], (self.config.ppo.num_envs,) + v.shape[1:]) if k.startswith(".env") else v
                 for k, v in flat.items()
             }
+        left_out = physics.derived_paths(template.env, self.task_env.previous_state_reads)
+        if not any(".env" + p in arrays for p in left_out):  # compact: the next step recomputes the rest
+            recomputed = [".env" + p for p in physics.derived_paths(template.env, ())]
+            arrays = {**{k: flat[k] for k in recomputed if k not in arrays}, **arrays}  # a fresh reset's values
         missing = sorted(set(flat) - set(arrays))
         extra = sorted(set(arrays) - set(flat))
         bad = [k for k in flat if k in arrays and (arrays[k].shape, arrays[k].dtype) != (flat[k].shape, flat[k].dtype)]
@@ -347,11 +358,8 @@ class PPOLoop:
                 "the saved training state does not match this env and config "
                 f"({detail}); was the env, network or ppo.num_envs changed?"
             )
-        host = LoopState(
-            training=_unreplicate(template.training),
-            env=jax.tree.map(lambda x: x[0], template.env),
-            key=template.key,
-            eval_key=template.eval_key,
+        host = template.replace(
+            training=_unreplicate(template.training), env=jax.tree.map(lambda x: x[0], template.env)
         )
         paths, treedef = jax.tree_util.tree_flatten_with_path(host)
         leaves = [arrays[jax.tree_util.keystr(path)] for path, _ in paths]

@@ -61,6 +61,15 @@ class Env(abc.ABC):
     `impl` picks the physics (`vnl.physics`: `jax`, `warp` or `c`); `threads` is C's thread pool.
     """
 
+    previous_state_reads: tuple[str, ...] | None = None
+    """The derived physics fields (`data.<name>`: `xpos`, `subtree_com`, `contact`, ...) that `step`
+    reads of the state it is given: before the physics recomputes them (a previous centre of mass
+    for a velocity) or after the physics blew up (it then returns that state, and every reward,
+    metric and `done` the task computes from it counts, down to the sign of a zero). A checkpoint
+    keeps these with the integration state and leaves the rest of the physics state out
+    (`vnl.physics.derived_paths`); None (unknown) keeps all of it. How to find them:
+    docs/experiments/compact-checkpoints.md."""
+
     def __init__(
         self, config: Any, mj_model: mujoco.MjModel, n_substeps: int, impl: str = "jax", threads: int | None = None
     ) -> None:

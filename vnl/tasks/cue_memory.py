@@ -101,6 +101,9 @@ class CueMemory(Env):
         }
         return State(data, self._obs(data, info), zero, zero, metrics, info)
 
+    # Its step reads only qpos and mocap_pos of the state it is given: docs/experiments/compact-checkpoints.md
+    previous_state_reads = ()
+
     def step(self, state: State, action: jax.Array) -> State:
         c = self.config
         t, cue = state.info["t"], state.info["cue"]

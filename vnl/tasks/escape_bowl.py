@@ -141,6 +141,9 @@ class EscapeBowl(WalkerTask):
         }
         return State(data, self._obs(data), zero, zero, metrics, {"rng": rng, "escaped": zero})
 
+    # A blown-up step's terms are v * ok, v >= 0: +0.0 whatever v; docs/experiments/compact-checkpoints.md
+    previous_state_reads = ()
+
     def step(self, state: State, action: jax.Array) -> State:
         action = self.sanitize_action(action)
         data, blew_up = self.physics_step(state.data, action)

@@ -77,6 +77,9 @@ class FindTarget(Env):
         }
         return State(data, self._obs(data), zero, zero, metrics, {})
 
+    # Its step reads only qpos and mocap_pos of the state it is given: docs/experiments/compact-checkpoints.md
+    previous_state_reads = ()
+
     def step(self, state: State, action: jax.Array) -> State:
         c = self.config
         ctrl = self.sanitize_action(action)

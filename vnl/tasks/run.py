@@ -269,6 +269,13 @@ class Run(WalkerTask):
         )
         return mjx_physics.sync(self._mjx_model, data), blew_up, {**state.info, "pipeline": pipeline}
 
+    @property
+    def previous_state_reads(self) -> tuple[str, ...]:
+        """The previous centre of mass (the velocity), the root's position (metrics of a blown-up
+        step) and, with a foot-slip cost, the feet's previous poses: docs/experiments/compact-checkpoints.md."""
+        feet = ("geom_xpos", "geom_xmat") if self._config.foot_slip_cost_weight > 0 else ()
+        return ("xpos", "subtree_com", *feet)
+
     def step(self, state: State, action: jax.Array) -> State:
         cfg: RunConfig = self._config
         action = self.sanitize_action(action)

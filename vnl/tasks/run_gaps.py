@@ -235,6 +235,16 @@ class RunGaps(WalkerTask):
         info = {"rng": rng, "layout": layout, "max_x": jp.float32(cfg.spawn_x)}
         return State(data, self._obs(data, layout), zero, zero, metrics, info)
 
+    @property
+    def previous_state_reads(self) -> tuple[str, ...]:
+        """The root's position (where the corridor's window goes) and, from a blown-up step, what
+        the velocity and the failure causes read: docs/experiments/compact-checkpoints.md."""
+        cfg: RunGapsConfig = self._config
+        reads = ("xpos", "xipos", "subtree_com", "cvel")
+        reads += ("geom_xpos", "geom_xmat") if cfg.terminate_foot_below is not None else ()
+        reads += ("xmat",) if cfg.healthy_min_upright is not None else ()
+        return reads + (("contact",) if cfg.contact_termination else ())
+
     def step(self, state: State, action: jax.Array) -> State:
         cfg: RunGapsConfig = self._config
         action = self.sanitize_action(action)

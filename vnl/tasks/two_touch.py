@@ -209,6 +209,9 @@ class TwoTouch(WalkerTask):
         }
         return State(data, self._obs(data, izero), zero, zero, metrics, info)
 
+    # The hands' positions: hand_distance of a blown-up step reads them; docs/experiments/compact-checkpoints.md
+    previous_state_reads = ("xpos",)
+
     def step(self, state: State, action: jax.Array) -> State:
         state = self.prepare(state)
         data, blew_up = self.physics_step(state.data, self.sanitize_action(action))

@@ -14,8 +14,9 @@ from typing import Any
 import jax
 import numpy as np
 
-from vnl import durable
+from vnl import durable, physics
 from vnl import typed_config as config_lib
+from vnl.envs.wrappers import wrap_for_training
 from vnl.errors import VnlError
 from vnl.io import checkpoint, layout, runlock
 from vnl.io import metrics as metrics_io
@@ -118,22 +119,32 @@ def written_dirs(config: TrainConfig) -> tuple[str, ...]:
     return (layout.CHECKPOINTS, *trackers)
 
 
-def checkpoint_bytes(config: TrainConfig, env: Env) -> int:
-    """Estimated size of one checkpoint, from shapes only (nothing is compiled).
-
-    The training state holds every env's state twice (current and first, for auto-reset); the
-    parameters are stored three times (params and Adam's two moments) plus once more in params/.
-    """
-    state = jax.eval_shape(env.reset, jax.ShapeDtypeStruct((2,), np.uint32))
-    per_env = sum(int(np.prod(x.shape)) * x.dtype.itemsize for x in jax.tree.leaves(state))
+def checkpoint_bytes(config: TrainConfig, env: Env, compact: bool = True) -> int:
+    """Estimated size of one checkpoint, from shapes only (nothing is compiled): every training
+    env's state (`env_state_bytes`) and the parameters three times (params and Adam's two moments)
+    plus once more in params/."""
     network = recurrent.make_networks(config, env)
     key = jax.ShapeDtypeStruct((2,), np.uint32)
     if recurrent.is_recurrent(config.network):
         params = jax.eval_shape(network.init, key)
     else:
         params = jax.eval_shape(lambda k: (network.policy_network.init(k), network.value_network.init(k)), key)
-    n_params = sum(int(np.prod(x.shape)) * x.dtype.itemsize for x in jax.tree.leaves(params))
-    return 2 * config.ppo.num_envs * per_env + 4 * n_params
+    n_params = sum(_nbytes(x) for x in jax.tree.leaves(params))
+    return config.ppo.num_envs * env_state_bytes(env, compact) + 4 * n_params
+
+
+def env_state_bytes(env: Env, compact: bool = True) -> int:
+    """The bytes a checkpoint holds of one training env's state, as training wraps it (its physics
+    state twice: current and first, for auto-reset), without the physics fields the next step
+    recomputes (`physics.derived_paths`; with them, `compact=False`, as before format 2)."""
+    state = jax.eval_shape(wrap_for_training(env, episode_length=1).reset, jax.ShapeDtypeStruct((1, 2), np.uint32))
+    dropped = set(physics.derived_paths(state, env.previous_state_reads)) if compact else set()
+    leaves = jax.tree_util.tree_flatten_with_path(state)[0]
+    return sum(_nbytes(x) for path, x in leaves if jax.tree_util.keystr(path) not in dropped)
+
+
+def _nbytes(x: Any) -> int:
+    return int(np.prod(x.shape)) * x.dtype.itemsize
 
 
 def check_disk_space(run_dir: Path, config: TrainConfig, env: Env) -> None:

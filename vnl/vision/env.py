@@ -150,6 +150,11 @@ class VisionEnv(Env):
     def backend(self) -> str:
         return self.blind.backend
 
+    @property
+    def previous_state_reads(self) -> tuple[str, ...] | None:
+        """The blind env's: the camera draws the state a step returns."""
+        return self.blind.previous_state_reads
+
     def __getattr__(self, name: str) -> Any:  # task attributes (cameras, walker, ...) of the blind env
         if name == "blind":
             raise AttributeError(name)
