@@ -108,14 +108,17 @@ def _median(v: np.ndarray) -> float | None:
 def spectra(x: np.ndarray, active: np.ndarray, fs: float) -> tuple[np.ndarray, np.ndarray]:
     """Welch's power spectral density of `x` (episode, time, k), over each episode's active
     steps, averaged over episodes weighted by their length: (frequencies (f,), psd (f, k)).
-    Segments are the shortest usable episode's length, at most 256 steps."""
+    Segments are the median length of the episodes of 16 steps or more, at most 256 steps; shorter
+    episodes are left out."""
     from scipy.signal import welch
 
     lengths = [int(a.sum()) for a in active]
-    usable = [e for e, n in enumerate(lengths) if n >= 16]
-    if not usable:
+    if max(lengths) < 16:
         raise VnlError("no episode has 16 active steps: a spectrum needs longer episodes (`vnl record --steps`)")
-    nperseg = min(256, min(lengths[e] for e in usable))
+    # Segments as long as the median episode allows: one short episode (a fall) must not coarsen the
+    # spectrum of all; episodes shorter than a segment are left out.
+    nperseg = min(256, int(np.median([n for n in lengths if n >= 16])))
+    usable = [e for e, n in enumerate(lengths) if n >= nperseg]
     total, weight = 0.0, 0
     freqs = np.zeros(0)
     for e in usable:
