@@ -1,20 +1,24 @@
 """What a checkpoint must keep of the training envs' physics state (issue 57), and its size.
 
-`--reads`: for each env (MJX and MuJoCo C physics), which fields of the physics state one
-training step reads before recomputing them. The envs are wrapped as training wraps them
-(`wrap_for_training`: vmap, episode limit, auto-reset), stepped 8 times with random actions (so
-that feet touch the floor), then stepped once more from that state with one field replaced by
-garbage (NaN, or a finite value for integers and a second try) and compared bit for bit with the
-unchanged step. Each field is tried on a normal step and on a step that blows up (an infinite
-applied force: the physics returns the previous state, whose fields the task then reads). A field
-is read when its garbage changes an output that training uses (observation, reward, done,
-metrics, info) or a field the checkpoint keeps; the kept set grows until nothing outside it is
-read (a fixed point). Then all fields outside the set are garbage at once, in the current and the
-first (auto-reset) state, for 3 steps through an episode's end; the outputs must not change.
+`--reads`: for each env (MJX or MuJoCo C physics, `--impl`), which derived fields of the physics
+state one training step reads. The env is wrapped as training wraps it (`wrap_for_training`:
+vmap, episode limit, auto-reset), stepped 8 times with random actions (so that feet touch the
+floor), then stepped once more with one field replaced by garbage (NaN, and four finite kinds:
+1.5x + 0.25, x - 1000, x + 1000, -x - 1; integers move, booleans flip) and compared bit for bit
+with the unchanged step. Each field is tried on a normal step and on one that blows up (an
+infinite applied force: the physics returns the previous state, from which the task computes
+that step's reward, metrics and done). A field is read when a finite garbage changes an output
+that training uses (observation, reward, done, metrics, info) or a kept physics field; the kept
+set grows until nothing outside it is read (a fixed point), and is compared with the task's
+`previous_state_reads`.
 
-`--recompute`: whether the kept derived fields (positions, frames, centres of mass, velocities)
-could instead be recomputed at load: `mjx_physics.sync` (and `mjx.forward`) run in their own
-program on the saved state, compared bit for bit with the saved values.
+`--joint`: every field a checkpoint leaves out is garbage at once, in the current and the first
+(auto-reset) state, for 3 steps through an episode's end (from a normal and a blown-up step);
+no output but those fields may change.
+
+`--recompute`: whether the derived fields could instead be recomputed at load: `mjx_physics.sync`
+and `mjx.forward`, each jitted on its own, on a saved state's integration state, compared bit for
+bit with the saved values.
 
 `--compressed`: the bytes per env of a checkpoint's (compact) env arrays after 50 random steps of
 64 envs, written plain (`np.savez`) and compressed (`np.savez_compressed`, what checkpoints use).
@@ -25,6 +29,7 @@ ant_run, with all of the env states (as before issue 57) and compact, from shape
 
     .venv/bin/python benchmarks/checkpoint_state.py --reads ant_run rodent_run --out reads.json
     .venv/bin/python benchmarks/checkpoint_state.py --reads --impl c      # every env, MuJoCo C
+    .venv/bin/python benchmarks/checkpoint_state.py --joint ant_run ant_run_gaps
     .venv/bin/python benchmarks/checkpoint_state.py --recompute rodent_run
     .venv/bin/python benchmarks/checkpoint_state.py --sizes
     .venv/bin/python benchmarks/checkpoint_state.py --compressed rodent_run humanoid_run ant_run
