@@ -38,6 +38,7 @@ import jax.numpy as jp
 from flax import linen
 
 from vnl.ppo.conv import cpu_convolutions
+from vnl.ppo.recurrent import dummy_observation, with_learned_scale
 
 Carry = tuple[jax.Array, ...]
 VALUE_PARTS = ("encoder", "vision_", "core", "value_head")
@@ -126,13 +127,7 @@ class MerelNet(linen.Module):
             policy_carry.extend(part)
         head = linen.Dense(self.out_size, name="policy_head")(x)
         if self.std_size:
-            from brax.training import networks
-
-            if self.noise_std_type == "log":
-                std = networks.LogParam(self.init_noise_std, size=self.std_size, name="std_logparam")()
-            else:
-                std = networks.Param(self.init_noise_std, size=self.std_size, name="std_param")()
-            head = (head, jp.broadcast_to(std, head.shape))
+            head = with_learned_scale(head, self.std_size, self.noise_std_type, self.init_noise_std)
         return head, value, {"value": core_carry, "policy": tuple(policy_carry)}
 
     def _split_policy_carry(self, flat: Carry) -> list[Carry]:
@@ -188,18 +183,13 @@ class MerelNetworks:
 
     policy_initial_carry = initial_carry  # the policy needs the core: its state is the whole carry
 
-    def _dummy_obs(self) -> Any:
-        size = self.observation_size
-        if isinstance(size, dict):
-            return {
-                k: jp.zeros((1,) + tuple(v), jp.uint8 if k.startswith("pixels/") else jp.float32)
-                for k, v in size.items()
-            }
-        return jp.zeros((1, size), jp.float32)
-
     def init(self, key: jax.Array) -> tuple[Any, Any]:
         with self._convolutions():
-            return split_params(self.module.init(key, self._prepared(self._dummy_obs()), self.initial_carry((1,))))
+            return split_params(
+                self.module.init(
+                    key, self._prepared(dummy_observation(self.observation_size)), self.initial_carry((1,))
+                )
+            )
 
     def _convolutions(self) -> Any:
         # XLA:CPU runs convolution gradients 10-20x slower inside PPO's loops (vnl.ppo.conv).

@@ -74,12 +74,27 @@ class CoreNet(linen.Module):
             carry = (h,)
         head = linen.Dense(self.out_size, name="output")(out)
         if self.std_size:
-            if self.noise_std_type == "log":
-                std = networks.LogParam(self.init_noise_std, size=self.std_size, name="std_logparam")()
-            else:
-                std = networks.Param(self.init_noise_std, size=self.std_size, name="std_param")()
-            head = (head, jp.broadcast_to(std, head.shape))
+            head = with_learned_scale(head, self.std_size, self.noise_std_type, self.init_noise_std)
         return head, carry, out
+
+
+def with_learned_scale(head: jax.Array, size: int, noise_std_type: str, init_noise_std: float) -> tuple[Any, Any]:
+    """(head (..., size), its learned per-action scale broadcast to head's shape): Brax's normal
+    policy's scale parameter, made in the calling module (`std_logparam` or `std_param`)."""
+    if noise_std_type == "log":
+        std = networks.LogParam(init_noise_std, size=size, name="std_logparam")()
+    else:
+        std = networks.Param(init_noise_std, size=size, name="std_param")()
+    return head, jp.broadcast_to(std, head.shape)
+
+
+def dummy_observation(size: Any) -> Any:
+    """One zero observation (1, ...) of an env's `observation_size` (a dict: uint8 images)."""
+    if isinstance(size, dict):
+        return {
+            k: jp.zeros((1,) + tuple(v), jp.uint8 if k.startswith("pixels/") else jp.float32) for k, v in size.items()
+        }
+    return jp.zeros((1, size), jp.float32)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -104,17 +119,8 @@ class RecurrentNetwork:
         shape = batch_shape + (self.module.core_size,)
         return tuple(jp.zeros(shape, jp.float32) for _ in range(self.carry_size))  # distinct buffers (donated)
 
-    def _dummy_obs(self) -> Any:
-        size = self.observation_size
-        if isinstance(size, dict):
-            return {
-                k: jp.zeros((1,) + tuple(v), jp.uint8 if k.startswith("pixels/") else jp.float32)
-                for k, v in size.items()
-            }
-        return jp.zeros((1, size), jp.float32)
-
     def init(self, key: jax.Array) -> Any:
-        return self.module.init(key, self._dummy_obs(), self.initial_carry((1,)))
+        return self.module.init(key, dummy_observation(self.observation_size), self.initial_carry((1,)))
 
     def _normalized(self, normalizer: Any, obs: Any) -> Any:
         if isinstance(obs, dict):
