@@ -66,9 +66,15 @@ def test_a_second_ctrl_c_during_a_training_epoch_aborts_at_once():
             threading.Timer(delay, lambda: os.kill(os.getpid(), signal.SIGINT)).start()
         t = time.time()
         with pytest.raises(KeyboardInterrupt):
-            stop.responsive(_blocked_in_xla(20.0), "training")
-        assert time.time() - t < 5.0
+            stop.responsive(_blocked_in_xla(8.0), "training")
+        assert time.time() - t < 4.0  # the program holds XLA for 8 s
         assert stop.requested.is_set() and signals.abandoned()
+    # The abandoned program ends on its own; no test after this one shares XLA with it.
+    for _ in range(200):
+        if not signals.abandoned():
+            break
+        time.sleep(0.05)
+    assert not signals.abandoned()
     # One request alone does not cut the epoch: it runs to its end and returns its result.
     stop = StopRequest()
     with stop.installed():
