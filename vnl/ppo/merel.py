@@ -38,7 +38,7 @@ import jax.numpy as jp
 from flax import linen
 
 from vnl.ppo.conv import cpu_convolutions
-from vnl.ppo.recurrent import dummy_observation, with_learned_scale
+from vnl.ppo.heads import dummy_observation, unit_pixels, with_learned_scale
 
 Carry = tuple[jax.Array, ...]
 VALUE_PARTS = ("encoder", "vision_", "core", "value_head")
@@ -140,10 +140,6 @@ class MerelNet(linen.Module):
             self.sow("intermediates", f"{name}_c", carry[0])
 
 
-def _pixels(x: jax.Array) -> jax.Array:
-    return x.astype(jp.float32) / 255.0 if x.dtype == jp.uint8 else x
-
-
 def split_params(params: Any) -> tuple[Any, Any]:
     """A `MerelNet`'s variables -> (policy's, value's): by part name (`VALUE_PARTS`)."""
     tree = params["params"]
@@ -197,7 +193,7 @@ class MerelNetworks:
         return cpu_convolutions() if vision and jax.default_backend() == "cpu" else contextlib.nullcontext()
 
     def _prepared(self, obs: Any) -> Any:
-        return {k: _pixels(v) for k, v in obs.items()} if isinstance(obs, dict) else obs
+        return {k: unit_pixels(v) for k, v in obs.items()} if isinstance(obs, dict) else obs
 
     def _normalized(self, normalizer: Any, obs: Any) -> Any:
         if isinstance(obs, dict):

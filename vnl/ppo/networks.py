@@ -21,6 +21,7 @@ from brax.training.agents.ppo import networks_vision
 
 from vnl.ppo.config import NetworkConfig, RunSettings
 from vnl.ppo.conv import cpu_convolutions
+from vnl.ppo.heads import unit_pixels
 from vnl.tasks.contract import Env
 
 ACTIVATIONS = {"swish": jax.nn.swish, "relu": jax.nn.relu, "tanh": jax.nn.tanh, "elu": jax.nn.elu}
@@ -78,15 +79,10 @@ def _vision_networks(*args: Any, **kwargs: Any) -> Any:
 
     def scaled(net: Any) -> Any:
         def apply(processor_params: Any, params: Any, obs: dict[str, Any]) -> Any:
-            obs = {k: _unit_pixels(v) if k.startswith("pixels/") else v for k, v in obs.items()}
+            obs = {k: unit_pixels(v) if k.startswith("pixels/") else v for k, v in obs.items()}
             with convolutions():
                 return net.apply(processor_params, params, obs)
 
         return networks.FeedForwardNetwork(init=net.init, apply=apply)
 
     return nets.replace(policy_network=scaled(nets.policy_network), value_network=scaled(nets.value_network))
-
-
-def _unit_pixels(x: Any) -> Any:
-    """uint8 [0, 255] -> float32 [0, 1] (float images pass through)."""
-    return x.astype(jp.float32) / 255.0 if x.dtype == jp.uint8 else x

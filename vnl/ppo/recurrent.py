@@ -26,14 +26,11 @@ from brax.training.acme import running_statistics
 from flax import linen
 
 from vnl.ppo.config import NetworkConfig, RunSettings
+from vnl.ppo.heads import dummy_observation, unit_pixels, with_learned_scale
 from vnl.ppo.networks import ACTIVATIONS
 from vnl.tasks.contract import Env
 
 Carry = tuple[jax.Array, ...]
-
-
-def _pixels(x: jax.Array) -> jax.Array:
-    return x.astype(jp.float32) / 255.0 if x.dtype == jp.uint8 else x
 
 
 class CoreNet(linen.Module):
@@ -61,7 +58,7 @@ class CoreNet(linen.Module):
                 state_obs_key="state",
                 name="encoder",
                 **(self.vision or {}),
-            )({k: _pixels(v) for k, v in obs.items()})
+            )({k: unit_pixels(v) for k, v in obs.items()})
         else:
             features = networks.MLP(
                 layer_sizes=tuple(self.hidden_sizes), activation=self.activation, activate_final=True, name="encoder"
@@ -76,25 +73,6 @@ class CoreNet(linen.Module):
         if self.std_size:
             head = with_learned_scale(head, self.std_size, self.noise_std_type, self.init_noise_std)
         return head, carry, out
-
-
-def with_learned_scale(head: jax.Array, size: int, noise_std_type: str, init_noise_std: float) -> tuple[Any, Any]:
-    """(head (..., size), its learned per-action scale broadcast to head's shape): Brax's normal
-    policy's scale parameter, made in the calling module (`std_logparam` or `std_param`)."""
-    if noise_std_type == "log":
-        std = networks.LogParam(init_noise_std, size=size, name="std_logparam")()
-    else:
-        std = networks.Param(init_noise_std, size=size, name="std_param")()
-    return head, jp.broadcast_to(std, head.shape)
-
-
-def dummy_observation(size: Any) -> Any:
-    """One zero observation (1, ...) of an env's `observation_size` (a dict: uint8 images)."""
-    if isinstance(size, dict):
-        return {
-            k: jp.zeros((1,) + tuple(v), jp.uint8 if k.startswith("pixels/") else jp.float32) for k, v in size.items()
-        }
-    return jp.zeros((1, size), jp.float32)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -1,0 +1,34 @@
+"""Pieces every vnl network shares (Brax-layout MLPs, recurrent cores, Merel's network): images
+to unit range, Brax's learned action scale, a dummy observation to initialise parameters."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.numpy as jp
+from brax.training import networks
+
+
+def unit_pixels(x: jax.Array) -> jax.Array:
+    """uint8 [0, 255] -> float32 [0, 1] (float images pass through)."""
+    return x.astype(jp.float32) / 255.0 if x.dtype == jp.uint8 else x
+
+
+def with_learned_scale(head: jax.Array, size: int, noise_std_type: str, init_noise_std: float) -> tuple[Any, Any]:
+    """(head (..., size), its learned per-action scale broadcast to head's shape): Brax's normal
+    policy's scale parameter, made in the calling module (`std_logparam` or `std_param`)."""
+    if noise_std_type == "log":
+        std = networks.LogParam(init_noise_std, size=size, name="std_logparam")()
+    else:
+        std = networks.Param(init_noise_std, size=size, name="std_param")()
+    return head, jp.broadcast_to(std, head.shape)
+
+
+def dummy_observation(size: Any) -> Any:
+    """One zero observation (1, ...) of an env's `observation_size` (a dict: uint8 images)."""
+    if isinstance(size, dict):
+        return {
+            k: jp.zeros((1,) + tuple(v), jp.uint8 if k.startswith("pixels/") else jp.float32) for k, v in size.items()
+        }
+    return jp.zeros((1, size), jp.float32)
