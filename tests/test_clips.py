@@ -39,7 +39,7 @@ def test_clips_round_trip(tmp_path):
     save_clips(tmp_path / "c.h5", [a, b])
     got = load_clips(tmp_path / "c.h5")
     assert [c.name for c in got] == ["a", "b"]
-    for want, have in zip([a, b], got):
+    for want, have in zip([a, b], got, strict=True):
         for key in ("qpos", "qvel", "xpos", "xquat"):
             np.testing.assert_array_equal(getattr(want, key), getattr(have, key))
         assert (have.walker, have.fps, have.source, have.body_names, have.joint_names) == (

@@ -13,7 +13,6 @@ from collections.abc import Callable
 from typing import Any
 
 import jax
-import jax.numpy as jp
 from brax.training import networks
 from brax.training.acme import running_statistics
 from brax.training.agents.ppo import networks as ppo_networks
