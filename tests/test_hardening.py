@@ -539,7 +539,44 @@ def test_a_compilation_cache_others_can_write_is_refused(tmp_path, capsys, how):
     try:
         assert stat.S_IMODE(fresh.stat().st_mode) == 0o700 and jax.config.jax_compilation_cache_dir == str(fresh)
     finally:
-        jax.config.update("jax_compilation_cache_dir", before)
+        from vnl import compile_cache
+
+        compile_cache.disable()
+        if before is not None:
+            compile_cache.enable(before)
+
+
+def test_a_disabled_or_moved_compilation_cache_is_no_longer_written(tmp_path, monkeypatch):
+    """JAX opens its cache once per process: `disable()` and a second `enable()` must reach it, or
+    every later compile in the process is written to the first directory."""
+    import jax
+
+    from vnl import compile_cache
+
+    def compile_once(n):
+        jax.jit(lambda x: x * n + 1.0).lower(jax.numpy.ones(n)).compile()
+
+    def entries(path):
+        return sorted(p.name for p in path.iterdir() if not p.name.startswith("."))
+
+    before = jax.config.jax_compilation_cache_dir
+    monkeypatch.setattr(compile_cache, "MIN_COMPILE_SECONDS", 0.0)
+    first, second = tmp_path / "first", tmp_path / "second"
+    try:
+        compile_cache.enable(first)
+        compile_once(3)
+        written = entries(first)
+        assert written, "the cache wrote nothing: the test cannot tell a disabled cache apart"
+        compile_cache.disable()
+        compile_once(5)
+        assert entries(first) == written
+        compile_cache.enable(second)
+        compile_once(7)
+        assert entries(first) == written and entries(second)
+    finally:
+        compile_cache.disable()
+        if before is not None:
+            compile_cache.enable(before)
 
 
 # --- the foundation ---------------------------------------------------------------------------

@@ -33,6 +33,7 @@ def enable(directory: str | Path) -> Path:
     probe = path / ".write-test"
     probe.write_bytes(b"")
     probe.unlink()
+    _forget_cache_in_use()
     jax.config.update("jax_compilation_cache_dir", str(path))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", MIN_COMPILE_SECONDS)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
@@ -58,3 +59,13 @@ def disable() -> None:
     import jax
 
     jax.config.update("jax_compilation_cache_dir", None)
+    _forget_cache_in_use()
+
+
+def _forget_cache_in_use() -> None:
+    """JAX opens its cache once per process and keeps writing to it whatever the config says
+    later: without this, `disable()` left every later compile serialised into the old directory
+    (a test worker then crashed serialising one; docs/developers/tests.md)."""
+    from jax.experimental.compilation_cache import compilation_cache
+
+    compilation_cache.reset_cache()
