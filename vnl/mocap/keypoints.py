@@ -56,7 +56,9 @@ class Keypoints:
         if p.ndim != 3 or p.shape[2] != 3:
             raise VnlError(f"keypoints from {self.source or 'data'}: positions are {p.shape}, expected (frames, K, 3)")
         if p.shape[1] != len(self.names):
-            raise VnlError(f"keypoints from {self.source or 'data'}: {p.shape[1]} keypoints but {len(self.names)} names")
+            raise VnlError(
+                f"keypoints from {self.source or 'data'}: {p.shape[1]} keypoints but {len(self.names)} names"
+            )
         if len(set(self.names)) != len(self.names):
             raise VnlError(f"keypoints from {self.source or 'data'}: keypoint names repeat: {list(self.names)}")
         if p.shape[0] < 1:

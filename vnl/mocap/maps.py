@@ -127,7 +127,9 @@ def _axes(spec: object, where: str) -> np.ndarray:
     ok = isinstance(spec, list) and len(spec) == 3 and all(isinstance(a, str) for a in spec)
     letters = [a.strip().lstrip("+-") for a in spec] if ok else []
     if not ok or sorted(letters) != ["x", "y", "z"]:
-        raise VnlError(f"{where}: axes must list x, y and z once each, signed where needed (e.g. [x, -z, y]), got {spec}")
+        raise VnlError(
+            f"{where}: axes must list x, y and z once each, signed where needed (e.g. [x, -z, y]), got {spec}"
+        )
     m = np.zeros((3, 3))
     for row, a in enumerate(spec):
         m[row, _AXES[a.strip().lstrip("+-")]] = -1.0 if a.strip().startswith("-") else 1.0
