@@ -22,7 +22,7 @@ from vnl.mocap.maps import KeypointMap
 
 def fit_model(walker: str, floor: bool = False) -> mujoco.MjModel:
     """The registered walker `walker` alone (no arena), with a free joint; its default options (the
-    rat's rigid tail: nq = 50). `floor`: a plane at z = 0 to render it on (the same qpos)."""
+    rat's rigid tail: nq = 50). `floor`: a plane at z = 0 and a tracking camera, to render it (the same qpos)."""
     from dm_control import mjcf
 
     from vnl import walkers
@@ -35,9 +35,24 @@ def fit_model(walker: str, floor: bool = False) -> mujoco.MjModel:
         root.attach(w.mjcf_model).add("freejoint")
         root.compiler.fusestatic = bool(w.fuse_static)
         if floor:
+            _add_tracking_camera(w)
             root.worldbody.add("geom", name="floor", type="plane", size=[3, 3, 0.1], rgba=[0.55, 0.6, 0.65, 1],
                                contype=0, conaffinity=0)  # fmt: skip
     return mujoco.MjModel.from_xml_string(root.to_xml_string(), root.get_assets())
+
+
+def _add_tracking_camera(w) -> None:  # noqa: ANN001 - a vnl.walkers.base.Walker
+    """A `tracking` camera (`walker/tracking`, the renderer's default) following the walker's
+    centre of mass from behind, to its left and above, at its `view_distance`, as in a task."""
+    body = w.mjcf_model.find("body", w.root_body)
+    if body is None or w.mjcf_model.find("camera", "tracking") is not None:
+        return
+    pos = np.array([-0.9, -0.9, 0.6]) * (w.view_distance or w.size)
+    forward = -pos / np.linalg.norm(pos)
+    x = np.cross(forward, [0.0, 0.0, 1.0])
+    x /= np.linalg.norm(x)
+    y = np.cross(x, forward)
+    body.add("camera", name="tracking", mode="trackcom", pos=pos.tolist(), xyaxes=[*x.tolist(), *y.tolist()])
 
 
 def markers(model: mujoco.MjModel, qpos: np.ndarray, body_ids: np.ndarray, offsets: np.ndarray) -> np.ndarray:
