@@ -22,11 +22,15 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from vnl import durable
 from vnl.errors import VnlError
+
+if TYPE_CHECKING:
+    import mujoco
 
 FORMAT = "vnl-clips"
 VERSION = 1
@@ -142,8 +146,9 @@ def load_clips(path: str | Path) -> list[Clip]:
     return clips
 
 
-def clip_from_qpos(name: str, model, qpos: np.ndarray, fps: float, walker: str, source: str = "",
-                   **extra) -> Clip:
+def clip_from_qpos(
+    name: str, model: mujoco.MjModel, qpos: np.ndarray, fps: float, walker: str, source: str = "", **extra: Any
+) -> Clip:
     """A clip from joint positions alone: qvel by MuJoCo's `mj_differentiatePos` between
     consecutive frames (the last frame repeats the one before), bodies by forward kinematics.
 
