@@ -155,7 +155,9 @@ def test_the_fit_recovers_a_known_rat_pose_from_its_markers():
     model, kmap = body.fit_model("rodent"), maps.load_map("rodent")
     q, cols = _known_rat_poses(model, 6)
     kp = body.keypoints_from_qpos(model, q, kmap, fps=30.0)
+    kp.positions[2, kmap.names.index("KneeL")] = np.nan  # a keypoint missing in one frame
     result = fit.fit(model, kmap, kp, fit.FitConfig(rounds=1, batch=2, fit_offsets=False))
+    assert np.isnan(result.residual_mm[2, kmap.names.index("KneeL")]) and np.isfinite(result.qpos).all()
     err = np.degrees(np.abs(result.qpos[:, cols] - q[:, cols]))
     assert np.median(err) < 0.3 and err.max() < 2.5
     assert np.linalg.norm(result.qpos[:, :3] - q[:, :3], axis=1).max() < 1e-3
