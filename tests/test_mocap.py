@@ -206,3 +206,15 @@ def test_keypoints_from_a_recording_are_the_maps_markers_on_its_poses(tmp_path):
     np.testing.assert_allclose(kp.positions[3, kmap.names.index("HandL")], want)
     with pytest.raises(VnlError, match="episode 2 is not among its 2 episodes"):
         body.keypoints_from_recording(tmp_path / "rec.nc", kmap, model, episode=2)
+
+
+def test_keypoints_named_after_bodies_map_onto_them():
+    """vnl's NWB export names its pose series after bodies (`walker.torso`): `--map bodies`."""
+    from vnl.mocap import body
+
+    model = body.fit_model("rodent")
+    kmap = maps.bodies_map(("walker.torso", "walker.skull"), "rodent")
+    assert [model.body(int(b)).name for b in kmap.body_ids(model)] == ["walker/torso", "walker/skull"]
+    np.testing.assert_array_equal(kmap.offsets, 0.0)
+    with pytest.raises(VnlError, match=r"bodies \['walker/tail'\] are not in the walker"):
+        maps.bodies_map(("walker.tail",)).body_ids(model)

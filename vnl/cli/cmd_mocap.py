@@ -26,7 +26,11 @@ def add(sub: Any) -> None:
     )
     f.add_argument("--out", required=True, help="the clips file to write (.h5)")
     f.add_argument("--walker", help="the walker (default: the map's walker, else rodent)")
-    f.add_argument("--map", help="keypoint-to-body map: a shipped name (rodent) or a YAML file (default: the walker's)")
+    f.add_argument(
+        "--map",
+        help="keypoint-to-body map: a shipped name (rodent), a YAML file, or `bodies` (keypoints named after the "
+        "walker's bodies, as vnl's NWB recordings hold them) (default: the walker's)",
+    )
     f.add_argument("--frames", type=frames_arg, metavar="START:END", help="only these frames (END excluded)")
     f.add_argument("--fps", type=positive, help="frames per second (default: from the file)")
     f.add_argument("--scale", type=positive, help="metres per unit of the file's numbers (default: the map's)")
@@ -85,6 +89,12 @@ def check_fit(args: argparse.Namespace) -> None:
         checks.output(args.render, VIDEOS, [args.keypoints, args.out])
     if args.walker:
         walkers.spec(args.walker)
+    if args.map == "bodies":  # keypoints named after bodies (vnl's NWB export): in metres already
+        args.walker = args.walker or "rodent"
+        kp = keypoints.read_keypoints(args.keypoints, scale=args.scale, fps=args.fps)
+        args.kmap = maps.bodies_map(kp.names, args.walker)
+        args.kp = args.kmap.apply(kp.select(*args.frames) if args.frames else kp)
+        return
     kmap = maps.load_map(args.map or args.walker or "rodent")
     args.walker = args.walker or kmap.walker or "rodent"
     walkers.spec(args.walker)

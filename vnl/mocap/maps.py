@@ -75,6 +75,16 @@ def resolve_bodies(model, bodies: tuple[str, ...], where: str) -> np.ndarray:  #
     return np.asarray(ids, np.int32)
 
 
+def bodies_map(names: tuple[str, ...], walker: str = "") -> KeypointMap:
+    """Keypoints that are bodies: each at the origin of the body it is named after (`/` may be
+    written `.`, as vnl's NWB export names its PoseEstimationSeries: `walker.torso`), in metres,
+    z up, its offset kept (regularization 1e6): `--map bodies`."""
+    bodies = tuple(n.replace(".", "/") for n in names)
+    k = len(names)
+    return KeypointMap(names=tuple(names), bodies=bodies, offsets=np.zeros((k, 3)), regularization=np.full(k, 1e6),
+                       walker=walker, source="bodies (each keypoint at the origin of its body)")  # fmt: skip
+
+
 def load_map(name_or_path: str | Path) -> KeypointMap:
     """A shipped map by name (`rodent`: `vnl/mocap/maps/rodent.yaml`) or a map file."""
     shipped = MAPS / f"{name_or_path}.yaml"
