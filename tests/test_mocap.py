@@ -218,3 +218,32 @@ def test_keypoints_named_after_bodies_map_onto_them():
     np.testing.assert_array_equal(kmap.offsets, 0.0)
     with pytest.raises(VnlError, match=r"bodies \['walker/tail'\] are not in the walker"):
         maps.bodies_map(("walker.tail",)).body_ids(model)
+
+
+@pytest.mark.slow
+def test_the_markers_jacobian_is_their_finite_differences():
+    """The solver's Jacobian (from MJX's joint axes and anchors) against MuJoCo C's kinematics."""
+    import jax
+    import mujoco
+
+    from vnl.mocap import body, solver
+
+    model, kmap = body.fit_model("rodent"), maps.load_map("rodent")
+    ids, p = kmap.body_ids(model), solver.problem(model, kmap.body_ids(model))
+    q = _known_rat_poses(model, 3)[0][1]
+    xpos, xmat, dofs = jax.jit(lambda x: solver.frames(p, x))(q.astype(np.float32))
+    marks = np.asarray(xpos) + np.einsum("kij,kj->ki", np.asarray(xmat), kmap.offsets)
+    jac = np.asarray(solver.jacobian(p, marks.astype(np.float32), dofs))
+    ref, eps = body.markers(model, q[None], ids, kmap.offsets)[0], 1e-5
+    for d in range(model.nv):
+        q2 = q.copy()
+        if d < 3:
+            q2[d] += eps
+        elif d < 6:  # the root turned about world axis d - 3
+            turn, axis = np.zeros(4), np.eye(3)[d - 3]
+            mujoco.mju_axisAngle2Quat(turn, axis, eps)
+            mujoco.mju_mulQuat(q2[3:7], turn, q[3:7].copy())
+        else:
+            q2[model.jnt_qposadr[model.dof_jntid[d]]] += eps
+        numeric = (body.markers(model, q2[None], ids, kmap.offsets)[0] - ref) / eps
+        np.testing.assert_allclose(jac[:, :, d], numeric, atol=2e-4)
