@@ -79,11 +79,21 @@ def cli_markdown(parser: argparse.ArgumentParser) -> str:
         "",
     ]
     for name, p in _subparsers(parser).items():
-        out += [f"## vnl {name}", "", _cell(_help(parser, name)), "", "```", p.format_usage().strip(), "```", ""]
-        out += ["| flag | value | default | what it does |", "|---|---|---|---|"]
-        out += [f"| {' | '.join(row)} |" for row in flag_rows(p)]
-        out.append("")
+        out += _section("##", f"vnl {name}", _help(parser, name), p)
+        if any(isinstance(a, argparse._SubParsersAction) for a in p._actions):  # `vnl mocap fit|render`
+            for sub, q in _subparsers(p).items():
+                out += _section("###", f"vnl {name} {sub}", _help(p, sub), q)
     return "\n".join(out)
+
+
+def _section(level: str, title: str, help: str, p: argparse.ArgumentParser) -> list[str]:
+    """One command's heading, help, usage and table of flags (those of its subcommands follow)."""
+    out = [f"{level} {title}", "", _cell(help), "", "```", p.format_usage().strip(), "```", ""]
+    rows = [row for row in flag_rows(p) if "{" not in row[0]]  # the subcommands' choice is their sections
+    if rows:
+        out += ["| flag | value | default | what it does |", "|---|---|---|---|"]
+        out += [f"| {' | '.join(row)} |" for row in rows]
+    return [*out, ""]
 
 
 # --- config dataclasses -------------------------------------------------------------------------

@@ -1,4 +1,4 @@
-"""`vnl` command line: list | train | eval | render | plot | record | analyze | compare | view.
+"""`vnl` command line: list | train | eval | render | plot | record | analyze | compare | view | mocap.
 
 The only package that parses flags. One module per command (`cmd_<name>.py`: its parser, its input
 checks, and what it runs); `main` dispatches through argparse (`set_defaults`). User mistakes print
@@ -28,6 +28,7 @@ from vnl.cli import (
     cmd_compare,
     cmd_eval,
     cmd_list,
+    cmd_mocap,
     cmd_plot,
     cmd_record,
     cmd_render,
@@ -38,7 +39,18 @@ from vnl.cli import (
 )
 from vnl.errors import VnlError
 
-COMMANDS = (cmd_list, cmd_train, cmd_eval, cmd_render, cmd_plot, cmd_record, cmd_view, cmd_compare, cmd_analyze)
+COMMANDS = (
+    cmd_list,
+    cmd_train,
+    cmd_eval,
+    cmd_render,
+    cmd_plot,
+    cmd_record,
+    cmd_view,
+    cmd_compare,
+    cmd_analyze,
+    cmd_mocap,
+)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import mujoco
@@ -41,10 +41,13 @@ def render_frames(
     width: int = 480,
     height: int = 360,
     mocap_pos: np.ndarray | None = None,
+    decorate: Callable[[int, mujoco.MjvScene], None] | None = None,
 ) -> np.ndarray:
     """Renders one frame per row of `qpos` (shape (T, nq)); returns uint8 (T, height, width, 3).
 
     `mocap_pos` (T, nmocap, 3) places mocap bodies per frame (e.g. the gaps corridor's platforms).
+    `decorate(t, scene)` may add geoms to frame t's scene before it is drawn (keypoints beside a
+    fitted walker: `vnl.mocap.render.overlay`).
 
     Raises `VnlError` with the fix when no OpenGL context can be made.
     """
@@ -68,6 +71,8 @@ def render_frames(
                 data.mocap_pos[:] = mocap_pos[t]
             mujoco.mj_forward(model, data)
             renderer.update_scene(data, camera=cam)
+            if decorate is not None:
+                decorate(t, renderer.scene)
             frames[t] = renderer.render()
     finally:
         renderer.close()

@@ -10,25 +10,33 @@ under `clips/<name>`, holding
     xquat       (T, B, 4) float32 every body's world orientation (wxyz)
     keypoints   (T, K, 3) float32 optional: the keypoints the clip was fitted to (m)
     residual_mm (T, K) float32    optional: per-frame, per-keypoint fit residual (mm)
+    marker_offsets (K, 3) float32 optional: where the fit put each keypoint's marker, in the frame
+                                  of its body (attribute `marker_bodies`, K names) (m)
 
-and attributes `walker`, `fps`, `source`, `joint_names`, `body_names`, `keypoint_names` (may be
-empty). Only numpy and h5py here: tasks read clips without MuJoCo's kinematics.
+and attributes `walker`, `fps`, `source`, `joint_names`, `body_names`, `keypoint_names`,
+`marker_bodies` (the last two may be empty). Only numpy and h5py here: tasks read clips without
+MuJoCo's kinematics.
 """
 
 from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from vnl import durable
 from vnl.errors import VnlError
 
+if TYPE_CHECKING:
+    import mujoco
+
 FORMAT = "vnl-clips"
 VERSION = 1
 _ARRAYS = ("qpos", "qvel", "xpos", "xquat")
-_OPTIONAL = ("keypoints", "residual_mm")
+_OPTIONAL = ("keypoints", "residual_mm", "marker_offsets")
+_NAMES = ("joint_names", "body_names", "keypoint_names", "marker_bodies")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -48,6 +56,8 @@ class Clip:
     keypoints: np.ndarray | None = None
     keypoint_names: tuple[str, ...] = ()
     residual_mm: np.ndarray | None = None
+    marker_offsets: np.ndarray | None = None
+    marker_bodies: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         t = self.qpos.shape[0]
@@ -64,6 +74,10 @@ class Clip:
             problems.append(f"keypoints is {self.keypoints.shape}, expected ({t}, {len(self.keypoint_names)}, 3)")
         if self.residual_mm is not None and self.residual_mm.shape != (t, len(self.keypoint_names)):
             problems.append(f"residual_mm is {self.residual_mm.shape}, expected ({t}, {len(self.keypoint_names)})")
+        k = len(self.keypoint_names)
+        if self.marker_offsets is not None and (self.marker_offsets.shape != (k, 3) or len(self.marker_bodies) != k):
+            problems.append(f"marker_offsets is {self.marker_offsets.shape} with {len(self.marker_bodies)} bodies, "
+                            f"expected ({k}, 3) and {k}")
         if not (self.fps > 0 and np.isfinite(self.fps)):
             problems.append(f"fps must be positive, got {self.fps}")
         if t < 2:
@@ -98,7 +112,7 @@ def save_clips(path: str | Path, clips: list[Clip]) -> Path:
                     if value is not None:
                         g.create_dataset(key, data=np.asarray(value, np.float32), compression="gzip")
                 g.attrs["walker"], g.attrs["fps"], g.attrs["source"] = c.walker, float(c.fps), c.source
-                for key in ("joint_names", "body_names", "keypoint_names"):
+                for key in _NAMES:
                     g.attrs[key] = np.array(getattr(c, key), dtype=h5py.string_dtype())
 
     return durable.write_atomic(path, writer=writer)
@@ -124,7 +138,7 @@ def load_clips(path: str | Path) -> list[Clip]:
             arrays = {k: np.asarray(g[k]) for k in _ARRAYS}
             optional = {k: (np.asarray(g[k]) if k in g else None) for k in _OPTIONAL}
             strs = {k: tuple(v.decode() if isinstance(v, bytes) else str(v) for v in g.attrs.get(k, []))
-                    for k in ("joint_names", "body_names", "keypoint_names")}
+                    for k in _NAMES}
             clips.append(Clip(name=name, walker=str(g.attrs["walker"]), fps=float(g.attrs["fps"]),
                               source=str(g.attrs.get("source", "")), **arrays, **optional, **strs))
     if not clips:
@@ -132,14 +146,15 @@ def load_clips(path: str | Path) -> list[Clip]:
     return clips
 
 
-def clip_from_qpos(name: str, model, qpos: np.ndarray, fps: float, walker: str, source: str = "",
-                   **extra) -> Clip:
+def clip_from_qpos(
+    name: str, model: mujoco.MjModel, qpos: np.ndarray, fps: float, walker: str, source: str = "", **extra: Any
+) -> Clip:
     """A clip from joint positions alone: qvel by MuJoCo's `mj_differentiatePos` between
     consecutive frames (the last frame repeats the one before), bodies by forward kinematics.
 
     Args:
       model: the walker's `mujoco.MjModel` (the walker alone or in an arena: every body is kept).
-      qpos: (T, nq). extra: keypoints, keypoint_names, residual_mm.
+      qpos: (T, nq). extra: keypoints, keypoint_names, residual_mm, marker_offsets, marker_bodies.
     """
     import mujoco
 
