@@ -221,8 +221,9 @@ class Imitate(WalkerTask):
         info = {"rng": rng, "clip": clip, "frame": index, "truncated": zero}
         return State(data, self._obs(data, clip, index), zero, zero, metrics, info)
 
-    # What a blown-up step's metrics read of the state it returns: docs/experiments/compact-checkpoints.md
-    previous_state_reads = ("xpos", "xquat", "xmat")
+    # A step reads nothing derived of the state it is given (a blown-up one pays and measures
+    # nothing): benchmarks/checkpoint_state.py --reads; docs/experiments/compact-checkpoints.md
+    previous_state_reads = ()
 
     def step(self, state: State, action: jax.Array) -> State:
         cfg: ImitateConfig = self._config
@@ -230,16 +231,22 @@ class Imitate(WalkerTask):
         clip = state.info["clip"]
         index = jp.minimum(state.info["frame"] + 1, self._lengths[clip] - 1)
         terms, errors = self.tracking(data, self.frame(clip, index))
-        ok = 1.0 - blew_up
-        failed = (errors["body_distance"] > cfg.termination_distance).astype(jp.float32) * ok
-        truncated = (index >= self._lengths[clip] - 1).astype(jp.float32) * (1.0 - failed) * ok
-        terms = {k: v * ok for k, v in terms.items()}
+        # A blown-up step returns the state before it: it pays and measures nothing (where, not a
+        # product, so that nothing of that state reaches the metrics).
+        ok = blew_up < 0.5
+
+        def paid(x: jax.Array) -> jax.Array:
+            return jp.where(ok, x, 0.0).astype(jp.float32)
+
+        failed = paid(errors["body_distance"] > cfg.termination_distance)
+        truncated = paid((index >= self._lengths[clip] - 1) & (failed < 0.5))
+        terms = {k: paid(v) for k, v in terms.items()}
         metrics = {
             **state.metrics,
             **{f"reward/{k}": v for k, v in terms.items()},
-            "measure/frames_tracked": (1.0 - failed) * ok,
-            "joint_error_deg": jp.degrees(errors["joint"]) * ok,
-            "body_error_mm": 1000.0 * errors["body_distance"] * ok,
+            "measure/frames_tracked": paid(1.0 - failed),
+            "joint_error_deg": paid(jp.degrees(errors["joint"])),
+            "body_error_mm": paid(1000.0 * errors["body_distance"]),
             "physics_nan": blew_up,
         }
         done = jp.maximum(jp.maximum(failed, truncated), blew_up)
