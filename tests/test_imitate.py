@@ -247,3 +247,29 @@ def test_bad_clips_are_refused_before_anything_is_compiled(tmp_path):
     with pytest.raises(VnlError, match="not a readable HDF5 clips file"):
         vnl.make("rodent_imitate", impl="c", clips=str(tmp_path / "text.h5"))
     assert contract.world_builds() == builds
+
+
+def test_another_walker_tracks_a_synthetic_clip_of_its_own(tmp_path):
+    """The ant, with a clip synthesised on its own world (default pose, joints swinging, the root
+    walking forward at 20 fps): built, resampled to the 50-Hz control step, reset onto the clip,
+    and paid in full at the clip's poses."""
+    from vnl.arenas import floor
+    from vnl.mocap.clips import clip_from_qpos
+    from vnl.tasks.base import build_walker, compile_world, spawn_height
+
+    cfg = imitate.ImitateConfig(walker="ant")
+    model, _ = compile_world(build_walker(cfg), floor.build(cfg.floor_size))
+    t = np.arange(30) / 20.0
+    qpos = np.tile(model.qpos0, (len(t), 1))
+    qpos[:, 0], qpos[:, 2] = 0.3 * t, spawn_height(model) + 0.02
+    qpos[:, 7:] += 0.3 * np.sin(2 * np.pi * 1.5 * t)[:, None]
+    save_clips(tmp_path / "ant.h5", [clip_from_qpos("walk", model, qpos, 20.0, "ant", "synthetic")])
+    e = vnl.make("rodent_imitate", impl="c", threads=1, walker="ant", clips=str(tmp_path / "ant.h5"))
+    assert e.clip_lengths.tolist() == [73]  # 1.45 s at 50 Hz, and its first frame
+    s = jax.jit(e.reset)(jax.random.PRNGKey(3))
+    ref = e.frame(s.info["clip"], s.info["frame"])
+    np.testing.assert_allclose(s.data.qpos, ref["qpos"], atol=1e-6)
+    terms, errors = e.tracking(s.data, ref)
+    assert all(float(terms[k]) == pytest.approx(1.0, rel=1e-3) for k in imitate.TERMS)
+    with pytest.raises(VnlError, match="is of the walker 'ant', and this env's walker is 'rodent'"):
+        vnl.make("rodent_imitate", impl="c", clips=str(tmp_path / "ant.h5"))

@@ -13,7 +13,8 @@ root body's subtree) too; the clip may hold more bodies (a world, arena bodies),
 Resampling. A clip at `fps` frames per second becomes frames at the control step `dt`: positions,
 joint angles, velocities and body positions interpolated linearly, the root's and the bodies'
 quaternions by spherical linear interpolation (slerp). The last frame is the last whole control
-step inside the clip.
+step inside the clip. Between two of the clip's frames a body's interpolated position lies on the
+chord of its arc, not exactly where the interpolated pose's kinematics put it.
 """
 
 from __future__ import annotations
