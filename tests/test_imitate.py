@@ -246,6 +246,8 @@ def test_bad_clips_are_refused_before_anything_is_compiled(tmp_path):
     (tmp_path / "text.h5").write_text("not a clips file")
     with pytest.raises(VnlError, match="not a readable HDF5 clips file"):
         vnl.make("rodent_imitate", impl="c", clips=str(tmp_path / "text.h5"))
+    with pytest.raises(VnlError, match="observes proprioception and the reference, got 'state'"):
+        vnl.make("rodent_imitate", impl="c", observation="state")
     assert contract.world_builds() == builds
 
 

@@ -105,6 +105,10 @@ class ImitateConfig(WalkerTaskConfig):
     def validate(self) -> None:
         super().validate()
         check_walker(self, arena="imitation floor")
+        if self.observation != "proprioception":
+            raise VnlError(
+                f"observation: rodent_imitate observes proprioception and the reference, got {self.observation!r}"
+            )
         if not 1 <= self.reference_steps <= 100:
             raise VnlError(f"reference_steps must be 1-100 frames, got {self.reference_steps}")
         if not (self.termination_distance > 0 and math.isfinite(self.termination_distance)):
