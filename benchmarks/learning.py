@@ -28,7 +28,8 @@ the fraction of the episode upright; gaps: gaps crossed and distance along the c
 the fraction of episodes that left the bowl and the seconds spent in it (the whole episode for
 those that did not leave); cue_memory: the fraction of episodes that end at the cued target, and
 that end nearer it than the other (chance 0.5); rodent_two_touch: the correct pairs (two touches of
-the orb 0.7-0.9 s apart) and the first touches (trials begun) per episode.
+the orb 0.7-0.9 s apart) and the first touches (trials begun) per episode; rodent_imitate: the
+control steps the rat tracked its reference clip before the episode ended.
 """
 
 from __future__ import annotations
@@ -64,6 +65,7 @@ MEASURES = {
         ("correct pairs", "eval/episode_measure/correct_pairs", ".2f"),
         ("first touches", "eval/episode_measure/first_touches", ".2f"),
     ],
+    "imitate": [("frames tracked", "eval/episode_measure/frames_tracked", ".1f")],
 }
 
 
@@ -72,6 +74,8 @@ def task_of(env: str) -> str:
         return "memory"
     if env.endswith("two_touch"):
         return "two_touch"
+    if env.endswith("imitate"):
+        return "imitate"
     return "gaps" if env.endswith("run_gaps") else "bowl" if env.endswith("escape_bowl") else "run"
 
 

@@ -172,7 +172,7 @@ def _probe():
 
 
 CASES = [(name, {}) for name in ("ant_run", "ant_run_gaps", "rodent_run", "rodent_run_gaps", "rodent_two_touch")]
-CASES += [(name, {}) for name in ("escape_bowl", "cue_memory", "find_target", "brax_ant_run")]
+CASES += [(name, {}) for name in ("escape_bowl", "cue_memory", "find_target", "brax_ant_run", "rodent_imitate")]
 CASES += [("ant_run", {"foot_slip_cost_weight": 0.1})]
 CASES += [("rodent_run_gaps", {"terminate_foot_below": -0.1, "healthy_min_upright": None})]
 

@@ -13,7 +13,7 @@ from typing import Any
 
 from vnl import typed_config as config_lib
 from vnl.errors import VnlError
-from vnl.tasks import cue_memory, escape_bowl, find_target, maze_forage, run, run_gaps, two_touch
+from vnl.tasks import cue_memory, escape_bowl, find_target, imitate, maze_forage, run, run_gaps, two_touch
 from vnl.tasks.contract import Env
 from vnl.vision.env import VisionConfig, VisionEnv
 
@@ -68,6 +68,11 @@ _REGISTRY: dict[str, Entry] = {
         maze_forage.MazeForage,
         maze_forage.RODENT_MAZE_FORAGE,
         "The rat collects the targets in a maze with rooms redrawn every episode (dm_control's maze forage).",
+    ),
+    "rodent_imitate": Entry(
+        imitate.Imitate,
+        imitate.RODENT_IMITATE,
+        "The rat tracks reference clips of a rat's motion, pose by pose (after dm_control's CoMic tracking).",
     ),
     "ant_run_gaps": Entry(
         run_gaps.RunGaps,

@@ -2,7 +2,8 @@
 
 Brax's `VmapWrapper` and `EpisodeWrapper` work on our `State` as they are. Brax's own
 `AutoResetWrapper` swaps in `state.pipeline_state`, which our `State` calls `data` (as MuJoCo
-Playground does), so we provide the auto-reset that resets `data`.
+Playground does), so we provide the auto-reset that resets `data`; our `EpisodeWrapper` adds a
+task's own truncations (a reference clip's end) to Brax's.
 """
 
 from __future__ import annotations
@@ -20,6 +21,20 @@ from vnl.vision.env import VisionEnv
 
 EPISODE_KEYS = ("steps", "truncation")
 """`state.info` entries of Brax's EpisodeWrapper (the episode's own bookkeeping)."""
+
+
+class EpisodeWrapper(brax_training.EpisodeWrapper):
+    """Brax's episode limit and bookkeeping, and a task's own truncations: where an env's step sets
+    `info["truncated"]` (1.0 when its episode ended for want of more task, such as the end of the
+    clip an imitation tracks, not by a failure), that end counts as a truncation too (`truncation`,
+    which PPO bootstraps through), as the episode limit does."""
+
+    def step(self, state: State, action: jax.Array) -> State:
+        state = super().step(state, action)
+        if "truncated" not in state.info:
+            return state
+        truncation = jp.maximum(state.info["truncation"], state.info["truncated"] * state.done)
+        return state.replace(info={**state.info, "truncation": truncation})
 
 
 class AutoResetWrapper(brax_training.Wrapper):
@@ -115,5 +130,5 @@ def wrap_for_training(
         env = RandomizedVmapWrapper(env, randomization_fn, axis_name=axis_name)
     if vision is not None:
         env = PixelsWrapper(env, vision)
-    env = brax_training.EpisodeWrapper(env, episode_length, action_repeat)
+    env = EpisodeWrapper(env, episode_length, action_repeat)
     return AutoResetWrapper(env)
