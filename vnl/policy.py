@@ -19,7 +19,7 @@ import numpy as np
 
 from vnl.errors import VnlError
 from vnl.io import checkpoint
-from vnl.ppo.networks import make_network
+from vnl.ppo.networks import make_inference_fn, make_network
 from vnl.ppo.recurrent import make_recurrent_networks
 from vnl.tasks.contract import Env
 from vnl.train.config import TrainConfig, read_config
@@ -83,12 +83,10 @@ class LoadedRun:
 def make_policy_fn(config: TrainConfig, env: Env, params: Any, deterministic: bool) -> Policy | RecurrentPolicy:
     """`policy(obs, rng) -> action` from Brax PPO params, with the run's network sizes; a
     `RecurrentPolicy` for a run with `network.core`."""
-    from brax.training.agents.ppo import networks as ppo_networks
-
     if config.network.core is not None:
         return RecurrentPolicy(make_recurrent_networks(config, env), params, deterministic)
     network = make_network(config, env)
-    inference = ppo_networks.make_inference_fn(network)(params, deterministic=deterministic)
+    inference = make_inference_fn(config, network)(params, deterministic=deterministic)
 
     def policy(obs: jax.Array, rng: jax.Array) -> jax.Array:
         """obs: (..., observation_size) (or the env's dict of arrays) -> action (..., action_size)

@@ -69,7 +69,11 @@ def network_activity(
     `<net>_core_c` for an LSTM): the core's state after reading `obs`, from which the step's
     output (and action) is computed. Merel's network (`network.architecture: merel`) has
     `encoder_hidden_<i>`, `encoder_vision_<camera>`, `core_h`/`core_c`, `policy_core_<i>_h`/`_c`,
-    `policy_output` and `value_output` (`vnl.ppo.merel`).
+    `policy_output` and `value_output` (`vnl.ppo.merel`). The intention network
+    (`network.architecture: intention`, `vnl.ppo.intention`) has `encoder_hidden_<i>`, the latent's
+    `encoder_intention_mean` and `encoder_intention_log_std`, `policy_intention` (the latent its
+    decoder read: the mean, or a draw when not `deterministic`), the decoder's `policy_hidden_<i>`,
+    `policy_output`, and the value MLP's layers.
     """
     if run.config.network.core is not None:
         return _recurrent_activity(run, obs, key, deterministic, core)
@@ -77,10 +81,11 @@ def network_activity(
     normalizer, policy_params, value_params = run.params
     act = ACTIVATIONS[run.config.network.activation]
     out: dict[str, Any] = {}
-    for prefix, net, params in (
-        ("policy", network.policy_network, policy_params),
-        ("value", network.value_network, value_params),
-    ):
+    nets = [("policy", network.policy_network, policy_params), ("value", network.value_network, value_params)]
+    if run.config.network.architecture == "intention":
+        out = _intention_activity(network, normalizer, policy_params, obs, key, deterministic)
+        nets = nets[1:]
+    for prefix, net, params in nets:
         result, dense = _dense_outputs(net.apply, normalizer, params, obs)
         # Brax's MLP layers are hidden_0..hidden_N; a `normal` policy's location layer
         # (Dense_0) follows its MLP's hidden layers.
@@ -91,6 +96,20 @@ def network_activity(
         if prefix == "policy":
             out["action"] = _action(network.parametric_action_distribution, result, key, deterministic)
     return out, core
+
+
+def _intention_activity(
+    network: Any, normalizer: Any, params: Any, obs: jax.Array, key: jax.Array, deterministic: bool
+) -> dict[str, Any]:
+    """The intention network's layers (`vnl.ppo.intention`) and action for `obs`, drawing the
+    latent and the action from `key` as its inference function does (the mean latent and the
+    mode when `deterministic`)."""
+    key_latent, key_action = jax.random.split(key)
+    policy = network.policy_network
+    noise = None if deterministic else jax.random.normal(key_latent, obs.shape[:-1] + (policy.intention_size,))
+    out, head = policy.activity(normalizer, params, obs, noise)
+    out["action"] = _action(network.parametric_action_distribution, head, key_action, deterministic)
+    return out
 
 
 def _action(dist: Any, logits: Any, key: jax.Array, deterministic: bool) -> jax.Array:
@@ -180,6 +199,12 @@ def record(run: LoadedRun, episodes: int, steps: int, seed: int = 0, determinist
     return _dataset(run, raw, e.obs, seed, deterministic)
 
 
+_LATENT = {
+    "encoder_intention_mean": "the intention latent's mean (linear)",
+    "encoder_intention_log_std": "the intention latent's log standard deviation (linear)",
+    "policy_intention": "the intention latent the decoder read (the mean, or a draw)",
+}
+"""The descriptions of the intention network's latent layers (`vnl.ppo.intention`)."""
 _STATE_NAMES = {"xpos": "body_pos", "xquat": "body_quat"}
 """The recording's names of the `mjx.Data` fields it keeps under another name."""
 
@@ -286,6 +311,7 @@ def _dataset(run: LoadedRun, raw: dict[str, Any], observation: Any, seed: int, d
     for layer in layers:
         name = layer["name"]
         kind = "output layer (raw)" if name.endswith("_output") else "hidden layer after the nonlinearity"
+        kind = _LATENT.get(name, kind)
         ds[name].attrs["description"] = kind
     return ds
 

@@ -165,12 +165,21 @@ class NetworkConfig:
     # (`encoder_hidden_layer_sizes`) and, with --vision, a ResNet per camera feed the `core`,
     # whose output the value reads; the policy's own stacked cores (`policy_core_sizes`) read the
     # core without training it. The `*_hidden_layer_sizes` and `cnn_*` keys are then unused.
-    architecture: Literal["brax", "merel"] = "brax"
+    # `intention`: Aldarondo et al. 2024's intention network for imitation (vnl.ppo.intention;
+    # docs/how-to/intention-network.md): an MLP (`encoder_hidden_layer_sizes`) encodes the
+    # reference part of the observation into a Gaussian latent of `intention_size`, which the
+    # decoder MLP (`policy_hidden_layer_sizes`) reads with the rest of the observation; PPO's loss
+    # adds `kl_weight` × the latent's KL divergence from N(0, I) (nats, summed over its units).
+    architecture: Literal["brax", "merel", "intention"] = "brax"
     encoder_hidden_layer_sizes: tuple[int, ...] = (256, 256)
     policy_core_sizes: tuple[int, ...] = (128,)
     resnet_channels: tuple[int, ...] = (16, 32, 32)
     resnet_blocks: int = 2
     resnet_features: int = 256
+    intention_size: int = 60  # the latent's units (track-mjx's rat: 60)
+    # Per nat of KL: the rat presets' price of a nat of action entropy (ppo.entropy_cost 1e-3);
+    # track-mjx's 1e-4 on the mean over 60 units is 1.7e-6 per nat (docs/how-to/intention-network.md).
+    kl_weight: float = 1e-3
 
     def validate(self) -> None:
         if not 1 <= self.core_size <= MAX_LAYER:
@@ -196,6 +205,8 @@ class NetworkConfig:
                 )
         if self.architecture == "merel":
             self._validate_merel()
+        if self.architecture == "intention":
+            self._validate_intention()
         n = len(self.cnn_channels)
         if len(self.cnn_kernel_sizes) != n or len(self.cnn_strides) != n:
             raise VnlError(
@@ -220,6 +231,22 @@ class NetworkConfig:
             raise VnlError(f"resnet_blocks must be in 0..64 residual blocks per section, got {self.resnet_blocks}")
         if not 1 <= self.resnet_features <= MAX_LAYER:
             raise VnlError(f"resnet_features must be in 1..{MAX_LAYER:,} units, got {self.resnet_features}")
+
+    def _validate_intention(self) -> None:
+        if self.core is not None:
+            raise VnlError(
+                "network.architecture intention is feed-forward (an MLP encoder and decoder); set network.core to null"
+            )
+        sizes = self.encoder_hidden_layer_sizes
+        if not sizes or any(s < 1 for s in sizes) or any(s > MAX_LAYER for s in sizes) or len(sizes) > 64:
+            raise VnlError(
+                f"encoder_hidden_layer_sizes must be a list of 1 to 64 sizes, each 1..{MAX_LAYER:,} units, got "
+                f"{list(sizes)[:8]}"
+            )
+        if not 1 <= self.intention_size <= MAX_LAYER:
+            raise VnlError(f"intention_size must be in 1..{MAX_LAYER:,} units, got {self.intention_size:,}")
+        if not 0 <= self.kl_weight <= 1e3:
+            raise VnlError(f"kl_weight must be in [0, 1000] (the KL term's weight in PPO's loss), got {self.kl_weight}")
 
 
 class RunSettings(Protocol):

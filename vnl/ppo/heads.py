@@ -7,7 +7,7 @@ from typing import Any
 
 import jax
 import jax.numpy as jp
-from brax.training import networks
+from brax.training import distribution, networks
 
 
 def unit_pixels(x: jax.Array) -> jax.Array:
@@ -23,6 +23,15 @@ def with_learned_scale(head: jax.Array, size: int, noise_std_type: str, init_noi
     else:
         std = networks.Param(init_noise_std, size=size, name="std_param")()
     return head, jp.broadcast_to(std, head.shape)
+
+
+def action_distribution(distribution_type: str, action_size: int) -> tuple[Any, int, int]:
+    """(Brax's action distribution of `network.distribution_type`, the policy's output size, the
+    size of its learned scale: 0 for `tanh_normal`, whose scale the policy outputs)."""
+    if distribution_type == "normal":
+        return distribution.NormalDistribution(event_size=action_size), action_size, action_size
+    dist = distribution.NormalTanhDistribution(event_size=action_size)
+    return dist, dist.param_size, 0
 
 
 def dummy_observation(size: Any) -> Any:

@@ -39,7 +39,6 @@ from brax.training import acting, gradients
 from brax.training import types as brax_types
 from brax.training.acme import running_statistics, specs
 from brax.training.agents.ppo import losses as ppo_losses
-from brax.training.agents.ppo import networks as ppo_networks
 from brax.training.agents.ppo import optimizer as ppo_optimizer
 from brax.training.agents.ppo.train import TrainingState
 
@@ -48,7 +47,7 @@ from vnl.envs import randomize
 from vnl.envs.wrappers import wrap_for_training
 from vnl.errors import VnlError
 from vnl.ppo.config import RunSettings
-from vnl.ppo.networks import make_network
+from vnl.ppo.networks import make_inference_fn, make_network
 from vnl.ppo.schedules import KL_RATE_RANGE, current_learning_rate, epoch_length, learning_rate
 
 AXIS = "i"  # the pmap axis over local devices
@@ -182,7 +181,7 @@ class PPOLoop:
     def _make_network(self, env: Any) -> Any:
         """Brax's PPO networks with the run's sizes."""
         network = make_network(self.config, env)
-        self.make_policy = ppo_networks.make_inference_fn(network)
+        self.make_policy = make_inference_fn(self.config, network)
         return network
 
     def _loss_fn(self) -> Any:

@@ -1,7 +1,8 @@
 """Brax's PPO networks with the run's sizes: the network factory and `make_network`.
 
 `network_factory(config.network, vision)` is Brax's `network_factory` hook (MLPs, or a CNN per
-`pixels/` observation then MLPs); `make_network(config, env)` builds the networks for an env.
+`pixels/` observation then MLPs); `make_network(config, env)` builds the networks for an env
+(with `network.architecture: intention`, `vnl.ppo.intention`'s, in Brax's `PPONetworks`).
 Training (`vnl.ppo.loop`) and loading a trained policy (`vnl.policy`) both use it.
 """
 
@@ -18,6 +19,7 @@ from brax.training.acme import running_statistics
 from brax.training.agents.ppo import networks as ppo_networks
 from brax.training.agents.ppo import networks_vision
 
+from vnl.ppo import intention
 from vnl.ppo.config import NetworkConfig, RunSettings
 from vnl.ppo.conv import cpu_convolutions
 from vnl.ppo.heads import unit_pixels
@@ -64,10 +66,19 @@ def make_network(config: RunSettings, env: Env) -> Any:
     """Brax's `PPONetworks` (policy, value, action distribution) with the run's sizes (and CNN,
     for an env with pixel observations)."""
     normalize = running_statistics.normalize if config.ppo.normalize_observations else (lambda x, y: x)
+    if config.network.architecture == "intention":
+        return intention.make_networks(config.network, env, normalize, ACTIVATIONS[config.network.activation])
     vision = isinstance(env.observation_size, dict)
     return network_factory(config.network, vision)(
         env.observation_size, env.action_size, preprocess_observations_fn=normalize
     )
+
+
+def make_inference_fn(config: RunSettings, network: Any) -> Callable[..., Any]:
+    """Brax's `make_inference_fn(network)`, or the intention network's (which draws its latent)."""
+    if config.network.architecture == "intention":
+        return intention.make_inference_fn(network)
+    return ppo_networks.make_inference_fn(network)
 
 
 def _vision_networks(*args: Any, **kwargs: Any) -> Any:

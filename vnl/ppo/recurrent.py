@@ -21,12 +21,12 @@ from typing import Any
 
 import jax
 import jax.numpy as jp
-from brax.training import distribution, networks
+from brax.training import networks
 from brax.training.acme import running_statistics
 from flax import linen
 
 from vnl.ppo.config import NetworkConfig, RunSettings
-from vnl.ppo.heads import dummy_observation, unit_pixels, with_learned_scale
+from vnl.ppo.heads import action_distribution, dummy_observation, unit_pixels, with_learned_scale
 from vnl.ppo.networks import ACTIVATIONS
 from vnl.tasks.contract import Env
 
@@ -217,10 +217,7 @@ def make_recurrent_networks(config: RunSettings, env: Env) -> Any:
 
 def _action_distribution(net: NetworkConfig, action_size: int) -> tuple[Any, int, int]:
     """(Brax's action distribution, the policy's output size, its learned-scale size)."""
-    if net.distribution_type == "normal":
-        return distribution.NormalDistribution(event_size=action_size), action_size, action_size
-    dist = distribution.NormalTanhDistribution(event_size=action_size)
-    return dist, dist.param_size, 0
+    return action_distribution(net.distribution_type, action_size)
 
 
 def _merel_networks(net: NetworkConfig, env: Env, normalize: Callable[[Any, Any], Any]) -> Any:

@@ -32,6 +32,7 @@ from brax.training import types as brax_types
 from brax.training.agents.ppo import losses as ppo_losses
 from brax.training.agents.ppo.losses import compute_gae
 
+from vnl.ppo.intention_ppo import IntentionPPOLoop
 from vnl.ppo.loop import PPOLoop, TrainingState
 from vnl.ppo.recurrent import RecurrentPPONetworks, make_recurrent_networks
 
@@ -247,6 +248,9 @@ class RecurrentPPOLoop(PPOLoop):
 
 
 def make_ppo_loop(env: Any, config: Any, training_steps_per_epoch: int | None = None) -> PPOLoop:
-    """`RecurrentPPOLoop` when `config.network.core` is set, else Brax's `PPOLoop`."""
-    cls = RecurrentPPOLoop if config.network.core is not None else PPOLoop
+    """`RecurrentPPOLoop` when `config.network.core` is set, `IntentionPPOLoop` for
+    `network.architecture: intention`, else Brax's `PPOLoop`."""
+    if config.network.core is not None:
+        return RecurrentPPOLoop(env, config, training_steps_per_epoch)
+    cls = IntentionPPOLoop if config.network.architecture == "intention" else PPOLoop
     return cls(env, config, training_steps_per_epoch)

@@ -70,6 +70,12 @@ class Env(abc.ABC):
     (`vnl.physics.derived_paths`); None (unknown) keeps all of it. How to find them:
     docs/experiments/compact-checkpoints.md."""
 
+    reference_blocks: tuple[str, ...] = ()
+    """The names of the `observation_layout` blocks that show a reference to follow (an imitation
+    task's next frames of the motion to track), the rest being the animal's own senses. The
+    intention network (`network.architecture: intention`, `vnl.ppo.intention`) encodes these
+    blocks alone; an env that declares none cannot train it."""
+
     def __init__(
         self, config: Any, mj_model: mujoco.MjModel, n_substeps: int, impl: str = "jax", threads: int | None = None
     ) -> None:

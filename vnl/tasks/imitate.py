@@ -71,6 +71,8 @@ from vnl.tasks.contract import State
 DATA = Path(__file__).with_name("data")
 """The clips vnl ships, `<walker>_clips.h5` (`clips: ""` takes the walker's)."""
 TERMS = ("root_pos", "body_quats", "joints", "joints_vel", "end_effectors")
+REFERENCE_BLOCKS = ("ref_root_pos", "ref_root_quat", "ref_joints", "ref_bodies_pos")
+"""The observation's blocks that show the reference (`observation_layout`), in their order."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -171,6 +173,7 @@ class Imitate(WalkerTask):
     and `reference_observation` (the egocentric reference) are pure: tests drive them directly."""
 
     new_episode_on_reset = True  # every episode its own clip and start frame (envs.wrappers.AutoResetWrapper)
+    reference_blocks = REFERENCE_BLOCKS  # what the intention network encodes (vnl.ppo.intention)
 
     def __init__(self, config: ImitateConfig) -> None:
         walker = build_walker(config)
@@ -301,5 +304,5 @@ class Imitate(WalkerTask):
 
     def observation_layout(self) -> list[tuple[str, int]]:
         n, j, b = self._config.reference_steps, len(self.layout.joint_qpos), len(self._bodies)
-        ref = [("ref_root_pos", 3 * n), ("ref_root_quat", 4 * n), ("ref_joints", j * n), ("ref_bodies_pos", 3 * b * n)]
+        ref = list(zip(REFERENCE_BLOCKS, (3 * n, 4 * n, j * n, 3 * b * n), strict=True))
         return self.proprioception_layout() + self.heading_layout() + ref + self.clock_layout()

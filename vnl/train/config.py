@@ -154,6 +154,20 @@ class TrainConfig:
                 "would go on from the parent's count instead of starting at learning_rate; drop one of them"
             )
         self._validate_curriculum()
+        if self.network.architecture == "intention":
+            self._validate_intention()
+
+    def _validate_intention(self) -> None:
+        """The intention network needs a flat observation with a reference part (`vnl.ppo.intention`):
+        an env class that declares no `reference_blocks` is refused here, before anything is built."""
+        if self.vision.enabled:
+            raise VnlError("network.architecture intention reads a flat observation; train it without --vision")
+        factory = registry.entry(self.env).factory
+        if isinstance(factory, type) and not getattr(factory, "reference_blocks", ()):
+            raise VnlError(
+                f"network.architecture intention encodes a reference to imitate, but {self.env} observes none "
+                "(no reference_blocks); use it with an imitation env such as rodent_imitate, or another architecture"
+            )
 
     def _validate_curriculum(self) -> None:
         """Every stage's env config is valid, and the stages' steps add up to ppo.num_timesteps."""

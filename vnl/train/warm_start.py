@@ -88,6 +88,8 @@ class Parent:
         if location is not None:  # network.distribution_type normal: a location per action
             return width, int(location.shape[-1])
         head = self.arrays.get(".training.params.policy['params']['output']['bias']")
+        if head is None:  # the intention network's head (vnl.ppo.intention)
+            head = self.arrays.get(".training.params.policy['params']['policy_head']['bias']")
         if head is not None:  # a recurrent core's head: a location (and with tanh_normal a scale) per action
             scale_param = any("['std_" in k for k in self.arrays if k.startswith(".training.params.policy"))
             return width, int(head.shape[-1]) // (1 if scale_param else 2)
@@ -151,6 +153,8 @@ def _check_networks(parent: Parent, config: TrainConfig) -> None:
         fields += ("encoder_hidden_layer_sizes", "policy_core_sizes")
         if b.vision.enabled:
             fields += ("resnet_channels", "resnet_blocks", "resnet_features")
+    if b.network.architecture == "intention":
+        fields += ("encoder_hidden_layer_sizes", "intention_size")
     if b.network.distribution_type == "normal":
         fields += ("noise_std_type",)
     if b.vision.enabled:
@@ -196,6 +200,11 @@ def check_layout(parent: Parent, env: Any, env_name: str) -> Parent:
     )
     if actions != env.action_size or own < width or isinstance(size, dict):
         raise mismatch
+    if parent.config.network.architecture == "intention":
+        raise VnlError(
+            f"cannot start from {parent.run_dir}: its intention network's encoder and decoder read fixed columns of "
+            f"its observation (width {width}), and {env_name}'s has width {own}; --init-from needs the same observation"
+        )
     rows, new = grown_inputs(parent.observation_layout(), env.observation_layout())
     if rows is None or int((rows >= 0).sum()) != width:
         raise mismatch
