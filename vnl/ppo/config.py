@@ -268,3 +268,16 @@ class RunSettings(Protocol):
     def seed(self) -> int: ...
 
     def episode_length(self) -> int: ...
+
+
+INTENTION_NEEDS_FLAT = "network.architecture intention reads a flat observation; train it without --vision"
+
+
+def intention_without_reference(env: str) -> str:
+    """The error line for `network.architecture: intention` on an env whose observation has no
+    reference part (checked from the registry by the run's config, and from the env itself when
+    the network is built)."""
+    return (
+        f"network.architecture intention encodes a reference to imitate, but {env} observes none (no "
+        "reference_blocks); use it with an imitation env such as rodent_imitate, or another architecture"
+    )

@@ -41,6 +41,7 @@ from brax.training.agents.ppo import networks as ppo_networks
 from flax import linen
 
 from vnl.errors import VnlError
+from vnl.ppo.config import INTENTION_NEEDS_FLAT, intention_without_reference
 from vnl.ppo.heads import action_distribution, with_learned_scale
 
 NOISE = "intention_noise"
@@ -53,11 +54,11 @@ def observation_parts(env: Any) -> tuple[tuple[int, ...], tuple[int, ...]]:
     `observation_layout` and the blocks its task declares as the reference (`reference_blocks`);
     a `VnlError` for an env with no reference or with image observations."""
     if isinstance(env.observation_size, dict):
-        raise VnlError("network.architecture intention reads a flat observation; train it without --vision")
+        raise VnlError(INTENTION_NEEDS_FLAT)
     blocks = tuple(getattr(getattr(env, "unwrapped", env), "reference_blocks", ()))
     layout = [(str(n), int(w)) for n, w in env.observation_layout()]
     if not blocks:
-        raise VnlError(no_reference(type(getattr(env, "unwrapped", env)).__name__))
+        raise VnlError(intention_without_reference(type(getattr(env, "unwrapped", env)).__name__))
     missing = [b for b in blocks if b not in {n for n, _ in layout}]
     if missing:
         raise VnlError(f"the env declares reference blocks {missing} that its observation_layout does not have")
@@ -70,14 +71,6 @@ def observation_parts(env: Any) -> tuple[tuple[int, ...], tuple[int, ...]]:
     if not rest:
         raise VnlError("network.architecture intention: the observation is all reference; the decoder needs the rest")
     return tuple(reference), tuple(rest)
-
-
-def no_reference(env: str) -> str:
-    """The error line for an env whose observation has no reference part."""
-    return (
-        f"network.architecture intention encodes a reference to imitate, but {env} observes none (no "
-        "reference_blocks); use it with an imitation env such as rodent_imitate, or another architecture"
-    )
 
 
 def kl_divergence(mean: jax.Array, log_std: jax.Array) -> jax.Array:

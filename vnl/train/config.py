@@ -15,6 +15,7 @@ from vnl.envs import registry
 from vnl.envs.randomize import RandomizeConfig
 from vnl.errors import VnlError
 from vnl.ppo.config import (  # noqa: F401 - PPO's settings, part of a run's config (and importable from here)
+    INTENTION_NEEDS_FLAT,
     LIMITS,
     MAX_ENVS,
     MAX_EPISODE_LENGTH,
@@ -22,6 +23,7 @@ from vnl.ppo.config import (  # noqa: F401 - PPO's settings, part of a run's con
     MAX_STEPS_PER_TRAINING_STEP,
     NetworkConfig,
     PPOConfig,
+    intention_without_reference,
 )
 from vnl.train import presets
 from vnl.vision.env import VisionConfig
@@ -161,13 +163,10 @@ class TrainConfig:
         """The intention network needs a flat observation with a reference part (`vnl.ppo.intention`):
         an env class that declares no `reference_blocks` is refused here, before anything is built."""
         if self.vision.enabled:
-            raise VnlError("network.architecture intention reads a flat observation; train it without --vision")
+            raise VnlError(INTENTION_NEEDS_FLAT)
         factory = registry.entry(self.env).factory
         if isinstance(factory, type) and not getattr(factory, "reference_blocks", ()):
-            raise VnlError(
-                f"network.architecture intention encodes a reference to imitate, but {self.env} observes none "
-                "(no reference_blocks); use it with an imitation env such as rodent_imitate, or another architecture"
-            )
+            raise VnlError(intention_without_reference(self.env))
 
     def _validate_curriculum(self) -> None:
         """Every stage's env config is valid, and the stages' steps add up to ppo.num_timesteps."""
