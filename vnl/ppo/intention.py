@@ -80,8 +80,10 @@ def kl_divergence(mean: jax.Array, log_std: jax.Array) -> jax.Array:
 
 class IntentionNet(linen.Module):
     """The network of the module docstring. `__call__(obs (..., O) normalized, noise (..., L) or
-    None) -> (policy output, latent mean (..., L), latent log std (..., L))`; noise None decodes
-    the mean."""
+    None, latent (..., L) or None) -> (policy output, latent mean (..., L), latent log std (...,
+    L))`; noise None decodes the mean. A given `latent` is decoded instead of the encoder's (a
+    frozen decoder driven by another policy, `vnl.train.frozen_decoder`): the encoder is not run,
+    the reference columns of `obs` are not read, and the mean returned is `latent`, its log std 0."""
 
     reference: tuple[int, ...]  # the observation's columns the encoder reads
     proprioception: tuple[int, ...]  # the columns the decoder reads with the latent
@@ -98,16 +100,14 @@ class IntentionNet(linen.Module):
         return linen.Dense(size, name=name, kernel_init=_KERNEL_INIT)
 
     @linen.compact
-    def __call__(self, obs: jax.Array, noise: jax.Array | None = None) -> tuple[Any, jax.Array, jax.Array]:
-        x = jp.take(obs, jp.asarray(self.reference, jp.int32), axis=-1)
-        for i, size in enumerate(self.encoder_sizes):
-            x = self.activation(self._dense(size, f"encoder_{i}")(x))
-            self.sow("intermediates", f"encoder_hidden_{i}", x)
-        mean = self._dense(self.intention_size, "intention_mean")(x)
-        log_std = self._dense(self.intention_size, "intention_log_std")(x)
-        self.sow("intermediates", "encoder_intention_mean", mean)
-        self.sow("intermediates", "encoder_intention_log_std", log_std)
-        latent = mean if noise is None else mean + jp.exp(log_std) * noise
+    def __call__(
+        self, obs: jax.Array, noise: jax.Array | None = None, latent: jax.Array | None = None
+    ) -> tuple[Any, jax.Array, jax.Array]:
+        if latent is None:
+            mean, log_std = self._encode(obs)
+            latent = mean if noise is None else mean + jp.exp(log_std) * noise
+        else:
+            mean, log_std = latent, jp.zeros_like(latent)
         self.sow("intermediates", "policy_intention", latent)
         x = jp.concatenate([latent, jp.take(obs, jp.asarray(self.proprioception, jp.int32), axis=-1)], axis=-1)
         for i, size in enumerate(self.decoder_sizes):
@@ -117,6 +117,18 @@ class IntentionNet(linen.Module):
         if self.std_size:
             head = with_learned_scale(head, self.std_size, self.noise_std_type, self.init_noise_std)
         return head, mean, log_std
+
+    def _encode(self, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """The encoder: the latent's (mean, log std), each (..., L), from the reference columns."""
+        x = jp.take(obs, jp.asarray(self.reference, jp.int32), axis=-1)
+        for i, size in enumerate(self.encoder_sizes):
+            x = self.activation(self._dense(size, f"encoder_{i}")(x))
+            self.sow("intermediates", f"encoder_hidden_{i}", x)
+        mean = self._dense(self.intention_size, "intention_mean")(x)
+        log_std = self._dense(self.intention_size, "intention_log_std")(x)
+        self.sow("intermediates", "encoder_intention_mean", mean)
+        self.sow("intermediates", "encoder_intention_log_std", log_std)
+        return mean, log_std
 
 
 @dataclasses.dataclass(frozen=True)

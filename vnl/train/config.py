@@ -7,8 +7,11 @@ Everything is validated before the environment is compiled.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 from pathlib import Path
 from typing import Any, Literal
+
+import yaml
 
 from vnl import typed_config as config_lib
 from vnl.envs import registry
@@ -100,6 +103,33 @@ class InitConfig:
 
 
 @dataclasses.dataclass(frozen=True)
+class DecoderConfig:
+    """A frozen decoder (`--set decoder.run=RUN_DIR`): the run's policy acts in the latent space
+    of another run's intention network, whose decoder, frozen, turns each latent into the body's
+    actions (`vnl.train.frozen_decoder`; docs/how-to/intention-network.md).
+
+    The policy's action a (intention_size,) in [-1, 1] is the latent `latent_scale` × a. `step`
+    None means the decoder run's newest checkpoint; the run's config.yaml records the step used,
+    the directory as an absolute path and `config_hash`, the hash of the decoder run's config."""
+
+    run: str | None = None
+    step: int | None = None
+    # 2: the latent's prior is N(0, I), and ±2 standard deviations hold 95% of it.
+    latent_scale: float = 2.0
+    config_hash: str | None = None
+
+    def validate(self) -> None:
+        if self.run is None and (self.step is not None or self.config_hash is not None):
+            raise VnlError("decoder.step needs decoder.run (the run whose intention network's decoder to reuse)")
+        if self.step is not None and self.step < 0:
+            raise VnlError(f"decoder.step must be >= 0, got {self.step}")
+        if not 0 < self.latent_scale <= 100:
+            raise VnlError(
+                f"decoder.latent_scale must be in (0, 100] (latent units per action unit), got {self.latent_scale}"
+            )
+
+
+@dataclasses.dataclass(frozen=True)
 class StageConfig:
     """One stage of a curriculum: `env_config` overrides (of the run's own env_config) trained for
     `steps` environment steps (`vnl.train.curriculum`)."""
@@ -135,6 +165,7 @@ class TrainConfig:
     vision: VisionConfig = VisionConfig()  # pixel observations from an in-graph camera (vnl.vision)
     init: InitConfig = InitConfig()  # warm start from another run (vnl.train.warm_start)
     curriculum: tuple[StageConfig, ...] = ()  # stages of env_config overrides (vnl.train.curriculum)
+    decoder: DecoderConfig = DecoderConfig()  # act through another run's frozen decoder (vnl.train.frozen_decoder)
 
     def __post_init__(self) -> None:
         # A frozen config must not hold a dict someone else can change (or that it shares).
@@ -156,8 +187,22 @@ class TrainConfig:
                 "would go on from the parent's count instead of starting at learning_rate; drop one of them"
             )
         self._validate_curriculum()
+        if self.decoder.run is not None:
+            self._validate_decoder()
         if self.network.architecture == "intention":
             self._validate_intention()
+
+    def _validate_decoder(self) -> None:
+        """A frozen decoder drives a flat-observation env through a brax or merel policy."""
+        if self.vision.enabled:
+            raise VnlError(
+                "decoder.run with --vision: a frozen decoder reads a flat observation; train without --vision"
+            )
+        if self.network.architecture == "intention":
+            raise VnlError(
+                "decoder.run gives the run another run's decoder; its own network must not be an intention "
+                "network too (network.architecture brax or merel)"
+            )
 
     def _validate_intention(self) -> None:
         """The intention network needs a flat observation with a reference part (`vnl.ppo.intention`):
@@ -197,7 +242,20 @@ class TrainConfig:
     def make_env(self) -> Any:
         """The env this config trains: the registered env with `env_config`, seeing through
         `vision`'s camera when it is enabled (a `VnlError` for an unknown camera)."""
-        return registry.make(self.env, vision=self.vision, **self.env_config)
+        env = registry.make(self.env, vision=self.vision, **self.env_config)
+        if self.decoder.run is None:
+            return env
+        from vnl.train import frozen_decoder
+
+        return frozen_decoder.wrap(env, self.decoder, read_config(self.decoder.run))
+
+    def content_hash(self) -> str:
+        """A short hash of this config without its `log` section (what a resume may change); an
+        unused `decoder` section is left out too, so runs written before it keep their hash."""
+        values = {k: v for k, v in config_lib.to_dict(self).items() if k != "log"}
+        if self.decoder == DecoderConfig():
+            values.pop("decoder")
+        return hashlib.sha256(yaml.safe_dump(values, sort_keys=True).encode()).hexdigest()[:16]
 
     def resolved_env_config(self) -> Any:
         """The env's full frozen config with `env_config` applied."""

@@ -28,7 +28,7 @@ from vnl.errors import VnlError
 from vnl.io import checkpoint, layout, runlock
 from vnl.io import metrics as metrics_io
 from vnl.ppo import loop
-from vnl.train import distributed, rundir, session, warm_start
+from vnl.train import distributed, frozen_decoder, rundir, session, warm_start
 from vnl.train.config import TrainConfig, read_config
 from vnl.train.config_changes import resume_config
 from vnl.train.session import Finish, Progress, Restored, Session, TrainResult
@@ -73,6 +73,8 @@ def _start(
     """A run from step 0: into a new directory (`saved` None), or into `run_dir` again, whose
     config.yaml holds `saved`, when it stopped before its first checkpoint."""
     loop.check_devices(config)
+    if config.decoder.run is not None and config.decoder.config_hash is None:
+        config = frozen_decoder.recorded(config, read_config(config.decoder.run))
     stop = session.stop_request()
     with stop.installed():
         try:

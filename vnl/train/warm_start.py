@@ -23,13 +23,11 @@ learns what the new inputs are worth. Not with `--vision` or `--keep-optimizer`.
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import re
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from vnl import typed_config as config_lib
 from vnl.errors import VnlError
@@ -104,8 +102,7 @@ class Parent:
 
 def config_hash(config: TrainConfig) -> str:
     """A short hash of a run's config without its `log` section (what a resume may change)."""
-    values = {k: v for k, v in config_lib.to_dict(config).items() if k != "log"}
-    return hashlib.sha256(yaml.safe_dump(values, sort_keys=True).encode()).hexdigest()[:16]
+    return config.content_hash()
 
 
 def parent_defaults(run_dir: str | Path) -> dict[str, Any]:

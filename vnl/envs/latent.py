@@ -1,0 +1,95 @@
+"""An env whose actions are a latent that a fixed decoder turns into the body's actions.
+
+A policy trained on `LatentActionEnv(env, decode, latent_size, scale)` acts in a latent space of
+`latent_size` units: each step its action a (latent_size,), nominally in [-1, 1], becomes the
+latent z = `scale` × a, and `decode(z, obs)` (obs: the observation the policy acted on, the
+state's `obs`) gives the body's action (env.action_size,), which the wrapped env steps with.
+Aldarondo et al. 2024's and track-mjx's reuse of an imitation decoder under a new high-level
+policy is this with the decoder frozen (`vnl.train.frozen_decoder` builds `decode` from a trained
+intention network; docs/how-to/intention-network.md#reusing-a-trained-decoder).
+
+Everything else (observations, rewards, metrics, rendering, the task's attributes) is the
+wrapped env's; `info["decoded_action"]` holds the body's action of the last step.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jp
+
+from vnl.tasks.contract import Env, State
+
+Decode = Callable[[jax.Array, jax.Array], jax.Array]
+"""`decode(latent (L,), obs (O,)) -> action (A,)`, jit-able and pure."""
+
+
+class LatentActionEnv(Env):
+    """`env` acted on through `decode` (see the module docstring). Flat observations only."""
+
+    def __init__(self, env: Env, decode: Decode, latent_size: int, scale: float = 1.0) -> None:
+        self.inner = env
+        self.decode = decode
+        self.latent_size = int(latent_size)
+        self.scale = float(scale)
+        # Not Env.__init__: the wrapped env owns the model (no second mjx.put_model).
+        self._config = env.config
+        self._mj_model = env.mj_model
+        self._mjx_model = env.mjx_model
+        self._n_substeps = env.n_substeps
+
+    def body_action(self, state: State, action: jax.Array) -> jax.Array:
+        """The body's action (A,) that the latent action `action` (L,) gives in `state`."""
+        latent = self.scale * jp.nan_to_num(action, nan=0.0, posinf=0.0, neginf=0.0)
+        return self.decode(latent, state.obs)
+
+    # The Env contract ----------------------------------------------------------------------------
+    def reset(self, rng: jax.Array) -> State:
+        state = self.inner.reset(rng)
+        return state.replace(info={**state.info, "decoded_action": jp.zeros(self.inner.action_size)})
+
+    def step(self, state: State, action: jax.Array) -> State:
+        body = self.body_action(state, action)
+        new = self.inner.step(state, body)
+        return new.replace(info={**new.info, "decoded_action": body})
+
+    @property
+    def action_size(self) -> int:
+        return self.latent_size
+
+    @property
+    def observation_shape(self) -> Any:
+        return self.inner.observation_shape
+
+    def observation_layout(self) -> list[tuple[str, int]]:
+        return self.inner.observation_layout()
+
+    @property
+    def unwrapped(self) -> Env:
+        return self.inner.unwrapped
+
+    @property
+    def backend(self) -> str:
+        return self.inner.backend
+
+    @property
+    def physics(self) -> Any:
+        return self.inner.physics
+
+    @property
+    def previous_state_reads(self) -> tuple[str, ...] | None:  # type: ignore[override]
+        """The wrapped env's: the decoder reads the observation, which the state carries."""
+        return self.inner.previous_state_reads
+
+    def with_model(self, mjx_model: Any) -> Env:
+        return LatentActionEnv(self.inner.with_model(mjx_model), self.decode, self.latent_size, self.scale)
+
+    def set_per_env_fields(self, names: tuple[str, ...]) -> None:
+        self.inner.set_per_env_fields(names)
+
+    def __getattr__(self, name: str) -> Any:  # task attributes (cameras, walker, ...) of the wrapped env
+        if name == "inner":
+            raise AttributeError(name)
+        return getattr(self.inner, name)
