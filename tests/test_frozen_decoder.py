@@ -150,5 +150,5 @@ def test_bad_frozen_decoders_are_refused(parent, tmp_path):
     trainer.train(build("test_point", SMALL, ppo={"num_timesteps": K, "num_evals": 1}), plain, say=quiet)
     with pytest.raises(VnlError, match="comes from an intention network"):
         build("test_point", SMALL, decoder={"run": str(plain)}).make_env()
-    with pytest.raises(VnlError, match="not found"):
+    with pytest.raises(VnlError, match="decoder.run: run directory not found"):
         build("test_point", SMALL, decoder={"run": str(tmp_path / "nowhere")}).make_env()

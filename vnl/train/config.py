@@ -247,7 +247,14 @@ class TrainConfig:
             return env
         from vnl.train import frozen_decoder
 
-        return frozen_decoder.wrap(env, self.decoder, read_config(self.decoder.run))
+        return frozen_decoder.wrap(env, self.decoder, self.decoder_run_config())
+
+    def decoder_run_config(self) -> TrainConfig:
+        """The saved config of `decoder.run`; a `VnlError` that names decoder.run if it is none."""
+        try:
+            return read_config(self.decoder.run)
+        except VnlError as e:
+            raise VnlError(f"decoder.run: {e}") from None
 
     def content_hash(self) -> str:
         """A short hash of this config without its `log` section (what a resume may change); an

@@ -74,7 +74,7 @@ def _start(
     config.yaml holds `saved`, when it stopped before its first checkpoint."""
     loop.check_devices(config)
     if config.decoder.run is not None and config.decoder.config_hash is None:
-        config = frozen_decoder.recorded(config, read_config(config.decoder.run))
+        config = frozen_decoder.recorded(config, config.decoder_run_config())
     stop = session.stop_request()
     with stop.installed():
         try:
