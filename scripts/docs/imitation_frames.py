@@ -17,7 +17,6 @@ import argparse
 from pathlib import Path
 
 import jax
-import jax.numpy as jp
 import numpy as np
 
 from vnl.io import video
