@@ -24,6 +24,7 @@ from vnl.io import checkpoint
 from vnl.io import metrics as metrics_io
 from vnl.train import config as train_config
 from vnl.train import rundir
+from vnl.train.config_changes import task_variant
 
 PARAMS = ({"mean": np.zeros(2, np.float32)}, {"w": np.ones(3, np.float32)}, {"w": np.ones(1, np.float32)})
 ARRAYS = {".training.params.policy['w']": np.ones(3, np.float32), ".env.x": np.zeros(2, np.float32)}
@@ -484,6 +485,37 @@ def test_a_user_walker_file_is_recorded_absolute_with_its_hash(tmp_path, monkeyp
     assert train_config.read_config(run).env_config["walker_xml"] == str(xml)  # found from anywhere
     xml.write_text(xml.read_text().replace("</mujoco>", "<!-- edited --></mujoco>"))
     with pytest.raises(VnlError, match="not the file this run was trained with"):
+        train_config.read_config(run)
+
+
+def test_an_imitations_clips_file_is_recorded_absolute_with_its_hash(tmp_path, monkeypatch):
+    import shutil
+
+    from vnl.tasks import imitate
+    from vnl.walkers.from_file import file_sha256
+
+    clips = tmp_path / "data" / "my_clips.h5"
+    clips.parent.mkdir()
+    shutil.copy(imitate.DATA / "rodent_clips.h5", clips)
+    monkeypatch.chdir(tmp_path)
+    config = train_config.build("rodent_imitate", "tiny", {"env_config": {"clips": "data/my_clips.h5"}})
+    saved = train_config.resolved(config)
+    assert saved.env_config["clips"] == str(clips) and saved.env_config["clips_sha256"] == file_sha256(clips)
+    run = tmp_path / "run"
+    run.mkdir()
+    config_lib.dump_yaml(saved, str(run / "config.yaml"))
+    monkeypatch.chdir("/")
+    assert train_config.read_config(run).env_config["clips"] == str(clips)  # found from anywhere
+    # Evaluating on other clips is a variant, not the run's file changed.
+    other = tmp_path / "other.h5"
+    shutil.copy(clips, other)
+    with open(other, "ab") as f:
+        f.write(b"\0")
+    variant = task_variant(train_config.read_config(run), [f"env_config.clips={other}"])
+    assert variant.env_config["clips"] == str(other) and variant.env_config["clips_sha256"] == ""
+    with open(clips, "ab") as f:
+        f.write(b"\0")  # the same name, other bytes
+    with pytest.raises(VnlError, match="not the file this run was trained on"):
         train_config.read_config(run)
 
 

@@ -67,6 +67,7 @@ from vnl.quiet_mjx import mjx
 from vnl.tasks import reference
 from vnl.tasks.base import WalkerTask, WalkerTaskConfig, body_id, build_walker, check_walker, compile_world
 from vnl.tasks.contract import State
+from vnl.walkers.from_file import file_sha256
 
 DATA = Path(__file__).with_name("data")
 """The clips vnl ships, `<walker>_clips.h5` (`clips: ""` takes the walker's)."""
@@ -88,6 +89,9 @@ class ImitateConfig(WalkerTaskConfig):
     floor_size: float = 10.0
     # A clips file (vnl.mocap.clips; `vnl mocap fit` writes them); "": vnl's own clips of the walker.
     clips: str = ""
+    # A run's config.yaml holds `clips` as an absolute path and its SHA-256 here (empty: not
+    # checked), so a run is rebuilt with the clips it was trained on or not at all.
+    clips_sha256: str = ""
     reference_steps: int = 5  # the reference's next frames in the observation (N)
     # The episode fails when the walker's bodies are on average farther than this from the
     # reference's (m). track-mjx ends a rat's episode 10 cm from the reference's root; dm_control's
@@ -126,6 +130,12 @@ class ImitateConfig(WalkerTaskConfig):
             raise VnlError(
                 f"clips: no such file {str(path)!r}; give a clips file of the {self.walker_xml or self.walker} "
                 "(env_config.clips; `vnl mocap fit` makes them)"
+            )
+        if self.clips_sha256 and file_sha256(path) != self.clips_sha256:
+            raise VnlError(
+                f"clips: {str(path)!r} is not the file this run was trained on (its SHA-256 was "
+                f"{self.clips_sha256[:12]}..., it is now {file_sha256(path)[:12]}...); put the original back, or "
+                "train a new run on this one"
             )
 
 

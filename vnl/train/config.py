@@ -320,23 +320,30 @@ def _curriculum_length(values: dict[str, Any], explicit: bool) -> dict[str, Any]
 
 
 def resolved(config: TrainConfig) -> TrainConfig:
-    """The config with `env_config` expanded to the env's full config, a user's walker file
-    pinned (`walker_xml` made absolute, its SHA-256 recorded) and the learning rate's decay length
-    made explicit (what config.yaml holds)."""
-    full = _pin_walker_file(config_lib.to_dict(config.resolved_env_config()))
+    """The config with `env_config` expanded to the env's full config, a user's files pinned
+    (`walker_xml` and `clips` made absolute, their SHA-256 recorded: `PINNED_FILES`) and the
+    learning rate's decay length made explicit (what config.yaml holds)."""
+    full = _pin_files(config_lib.to_dict(config.resolved_env_config()))
     p = config.ppo
     if p.learning_rate_final is not None and p.learning_rate_decay_steps is None:
         p = dataclasses.replace(p, learning_rate_decay_steps=p.num_timesteps)
     return dataclasses.replace(config, env_config=full, ppo=p)
 
 
-def _pin_walker_file(env_config: dict[str, Any]) -> dict[str, Any]:
-    """`env_config` with its `walker_xml` (if any) absolute and `walker_xml_sha256` set."""
-    xml = env_config.get("walker_xml")
-    if not xml or "walker_xml_sha256" not in env_config:
-        return env_config
-    path = Path(xml).expanduser().absolute()
-    return {**env_config, "walker_xml": str(path), "walker_xml_sha256": file_sha256(path)}
+PINNED_FILES = {"walker_xml": "walker_xml_sha256", "clips": "clips_sha256"}
+"""The env config's user files (a walker's MJCF, an imitation's clips) and the field that holds
+each one's SHA-256 in a run's config.yaml."""
+
+
+def _pin_files(env_config: dict[str, Any]) -> dict[str, Any]:
+    """`env_config` with each of its `PINNED_FILES` that is set made absolute and its SHA-256 set."""
+    pinned = dict(env_config)
+    for key, sha in PINNED_FILES.items():
+        name = env_config.get(key)
+        if name and sha in env_config:
+            path = Path(name).expanduser().absolute()
+            pinned.update({key: str(path), sha: file_sha256(path)})
+    return pinned
 
 
 def read_config(run_dir: str | Path) -> TrainConfig:

@@ -7,7 +7,7 @@ from typing import Any
 
 from vnl import typed_config as config_lib
 from vnl.errors import VnlError
-from vnl.train.config import TrainConfig
+from vnl.train.config import PINNED_FILES, TrainConfig
 
 SAFE_TO_CHANGE_ON_RESUME = ("ppo.num_timesteps", "log.", "env_config.threads")
 """What a resumed run may change: its length, logging, and C physics' thread count (MuJoCo's
@@ -70,8 +70,9 @@ def task_variant(saved: TrainConfig, assignments: list[str]) -> TrainConfig:
     values = {**config_lib.to_dict(saved), "curriculum": []}
     for text in assignments:
         change = config_lib.task_variant_assignment(text)
-        if "walker_xml" in change["env_config"] and "walker_xml_sha256" in values["env_config"]:
-            change["env_config"].setdefault("walker_xml_sha256", "")  # another walker file: not the run's
+        for key, sha in PINNED_FILES.items():  # another walker or clips file: not the run's
+            if key in change["env_config"] and sha in values["env_config"]:
+                change["env_config"].setdefault(sha, "")
         values = config_lib.merge(values, change)
     return config_lib.from_dict(TrainConfig, values)
 
