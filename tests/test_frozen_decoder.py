@@ -11,6 +11,7 @@ import jax
 import jax.numpy as jp
 import numpy as np
 import pytest
+from test_intention import NETWORK, K, L  # the same small intention network (tests/ is on sys.path)
 from tiny_env import PointConfig, PointMass
 
 from vnl.envs import registry
@@ -23,15 +24,6 @@ from vnl.train import frozen_decoder, trainer
 
 pytestmark = [pytest.mark.xdist_group("frozen_decoder"), pytest.mark.usefixtures("point_envs")]
 
-K = 1024
-L = 3
-NETWORK = {
-    "architecture": "intention",
-    "encoder_hidden_layer_sizes": [16],
-    "intention_size": L,
-    "policy_hidden_layer_sizes": [8, 8],
-    "value_hidden_layer_sizes": [8],
-}
 SMALL = {"policy_hidden_layer_sizes": [8], "value_hidden_layer_sizes": [8]}
 
 
