@@ -275,3 +275,38 @@ def test_another_walker_tracks_a_synthetic_clip_of_its_own(tmp_path):
     assert all(float(terms[k]) == pytest.approx(1.0, rel=1e-3) for k in imitate.TERMS)
     with pytest.raises(VnlError, match="is of the walker 'ant', and this env's walker is 'rodent'"):
         vnl.make("rodent_imitate", impl="c", clips=str(tmp_path / "ant.h5"))
+
+
+def test_a_recording_keeps_the_reference_beside_the_pose_and_exports_it(tmp_path):
+    """`vnl record` of an imitation keeps, per step, the reference clip's frame the walker was asked
+    to take (start frame + t, as the env tracks it): at the reset it is the walker's own pose, and
+    the NWB export holds it as a second pose estimation beside the body's."""
+    from test_viewer import untrained_run
+
+    from vnl import record
+    from vnl.recording import nwb
+
+    run = untrained_run(tmp_path / "run", "rodent_imitate")
+    ds = record.record(run, episodes=2, steps=6)
+    walker = np.isfinite(ds["reference_body_pos"].values[0, 0, :, 0])
+    np.testing.assert_array_equal(np.flatnonzero(walker), env()._bodies)  # the walker's bodies, NaN elsewhere
+    np.testing.assert_allclose(ds["reference_qpos"].values[:, 0], ds["qpos"].values[:, 0], atol=1e-6)
+    np.testing.assert_allclose(
+        ds["reference_body_pos"].values[:, 0][:, walker], ds["body_pos"].values[:, 0][:, walker], atol=1e-5
+    )
+    # Step t's reference is frame t after the start: the rat, untrained, drifts off it.
+    ref = np.asarray(env()._ref["qpos"])
+    for e in range(2):
+        row = np.flatnonzero(np.all(np.abs(ref - ds["reference_qpos"].values[e, 0]) < 1e-6, axis=-1))
+        clip, frame = np.unravel_index(row[0], ref.shape[:2])
+        np.testing.assert_allclose(ds["reference_qpos"].values[e, 5], ref[clip, frame + 5], atol=1e-6)
+    path = nwb.write(ds, tmp_path / "rec.nwb")
+    from pynwb import NWBHDF5IO
+
+    with NWBHDF5IO(str(path), "r") as io:
+        behavior = io.read().processing["behavior"]
+        reference = behavior["ReferencePoseEstimation"]
+        torso = reference.pose_estimation_series["walker.torso"]
+        body = list(ds["body"].values).index("walker/torso")
+        np.testing.assert_allclose(torso.data[:6], ds["reference_body_pos"].values[0, :, body], atol=1e-6)
+        assert "PoseEstimation" in behavior.data_interfaces

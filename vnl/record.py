@@ -196,6 +196,10 @@ def record(run: LoadedRun, episodes: int, steps: int, seed: int = 0, determinist
     layout = e.info0.get("layout") if isinstance(e.info0, dict) else None
     if layout is not None:  # a gaps corridor: each episode's platforms, (episodes, platforms)
         raw["layout_start"], raw["layout_length"] = np.asarray(layout.start), np.asarray(layout.length)
+    poses = getattr(env.unwrapped, "reference_poses", None)
+    if poses is not None:  # an imitation: the reference pose the body was asked to take at each step
+        ref = poses(np.asarray(e.info0["clip"]), np.asarray(e.info0["frame"]), steps)
+        raw["reference_qpos"], raw["reference_body_pos"] = ref["qpos"], ref["body_pos"]
     return _dataset(run, raw, e.obs, seed, deterministic)
 
 
@@ -248,6 +252,9 @@ def _variables(run: LoadedRun, raw: dict[str, Any], observation: Any) -> tuple[d
             "body_parent": (("body",), np.asarray(m.body_parentid, np.int32)),
         }
     )
+    if "reference_qpos" in raw:  # an imitation's reference, beside the body's own pose
+        data["reference_qpos"] = (dims_et + ("qpos_index",), raw["reference_qpos"])
+        data["reference_body_pos"] = (dims_et + ("body", "xyz"), raw["reference_body_pos"])
     for k, v in raw["metrics"].items():
         data[k.replace("/", "_")] = (dims_et, v)
     layers = []

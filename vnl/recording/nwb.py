@@ -9,6 +9,7 @@ ends. Layout:
   `notes`: the run's config and the checkpoint step (JSON).
 - `processing/behavior`: `Skeletons` (the walker's bodies, edges to their parents) and
   `PoseEstimation` (ndx-pose: one `PoseEstimationSeries` per body, world positions in metres);
+  for an imitation, `ReferencePoseEstimation` beside it: the reference clip's pose at each step;
   `TimeSeries` of joint angles and velocities, actions, rewards, centre-of-mass velocity, forward
   speed, foot contacts, gait phase and the distance to the next gap (those recorded); tables
   naming their columns (`joints`, `actuators`, `end_effectors`).
@@ -144,28 +145,50 @@ def _pose(ds: Any, rows: tuple[np.ndarray, np.ndarray], clock: dict, subject: An
     if len(ids) > 255:
         raise VnlError(f"{len(ids)} bodies: ndx-pose's skeleton edges index at most 255 nodes")
     skeleton = Skeleton(name="walker", nodes=[names[b] for b in ids], edges=edges.reshape(-1, 2), subject=subject)
-    pos = np.asarray(ds["body_pos"].values)[rows]
-    series = [
-        PoseEstimationSeries(
-            name=names[b].replace("/", "."),
-            description=f"world position of body {names[b]} (MuJoCo xpos): the simulator's ground truth",
-            data=pos[:, b].astype(np.float32),
-            unit="meters",
-            reference_frame="MuJoCo world frame: origin on the floor at the arena's centre, z up",
-            confidence_definition="no estimation: the simulator's exact positions (confidence omitted)",
-            **clock,
+
+    def estimation(variable: str, name: str, what: str, description: str) -> Any:
+        pos = np.asarray(ds[variable].values)[rows]
+        series = [
+            PoseEstimationSeries(
+                name=names[b].replace("/", "."),
+                description=f"world position of body {names[b]} ({what})",
+                data=pos[:, b].astype(np.float32),
+                unit="meters",
+                reference_frame="MuJoCo world frame: origin on the floor at the arena's centre, z up",
+                confidence_definition="no estimation: exact positions (confidence omitted)",
+                **clock,
+            )
+            for b in ids
+        ]
+        return PoseEstimation(
+            name=name,
+            pose_estimation_series=series,
+            description=description,
+            skeleton=skeleton,
+            source_software="MuJoCo",
+            source_software_version=mujoco.__version__,
         )
-        for b in ids
+
+    out = [
+        Skeletons(skeletons=[skeleton]),
+        estimation(
+            "body_pos",
+            "PoseEstimation",
+            "MuJoCo xpos: the simulator's ground truth",
+            "3D positions of the walker's bodies from the physics simulator (no camera, no estimation)",
+        ),
     ]
-    estimation = PoseEstimation(
-        name="PoseEstimation",
-        pose_estimation_series=series,
-        description="3D positions of the walker's bodies from the physics simulator (no camera, no estimation)",
-        skeleton=skeleton,
-        source_software="MuJoCo",
-        source_software_version=mujoco.__version__,
-    )
-    return [Skeletons(skeletons=[skeleton]), estimation]
+    if "reference_body_pos" in ds:  # an imitation: the pose the walker was asked to take, step by step
+        out.append(
+            estimation(
+                "reference_body_pos",
+                "ReferencePoseEstimation",
+                "the reference clip's frame at this step",
+                "3D positions of the walker's bodies in the reference clip it imitates, at each step's frame "
+                "(the target of the tracking rewards)",
+            )
+        )
+    return out
 
 
 def _behaviour(ds: Any, rows: tuple[np.ndarray, np.ndarray], clock: dict) -> list[Any]:

@@ -215,6 +215,19 @@ class Imitate(WalkerTask):
         steps = jp.arange(1, self._config.reference_steps + 1, dtype=jp.int32)
         return self.frame(clip, jp.minimum(index + steps, self._lengths[clip] - 1))
 
+    def reference_poses(self, clip: np.ndarray, start: np.ndarray, steps: int) -> dict[str, np.ndarray]:
+        """The reference of E episodes that began at frame `start` (E,) of clip `clip` (E,) (their
+        reset states' `info`), at states s_0 .. s_{steps-1} (frame start + t, held at the clip's
+        last): `qpos` (E, steps, nq) and `body_pos` (E, steps, nbody, 3), the model's bodies in
+        world coordinates, NaN for bodies that are not the walker's (the world, the arena)."""
+        clip, start = np.asarray(clip, int), np.asarray(start, int)
+        last = np.asarray(self._lengths)[clip] - 1
+        index = np.minimum(start[:, None] + np.arange(steps)[None], last[:, None])
+        ref = {k: np.asarray(self._ref[k]) for k in ("qpos", "body_pos")}
+        body_pos = np.full(index.shape + (self.mj_model.nbody, 3), np.nan, np.float32)
+        body_pos[:, :, self._bodies] = ref["body_pos"][clip[:, None], index]
+        return {"qpos": ref["qpos"][clip[:, None], index], "body_pos": body_pos}
+
     # --- the contract ----------------------------------------------------------------------------
     def reset(self, rng: jax.Array) -> State:
         rng, k_start, k_noise = jax.random.split(rng, 3)
