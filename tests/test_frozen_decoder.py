@@ -117,6 +117,21 @@ def test_a_run_trains_through_a_frozen_decoder_and_records_it(parent, tmp_path):
     assert isinstance(child.env, LatentActionEnv) and child.env.action_size == L
     action = child.policy(jp.zeros((2, 2)), jax.random.PRNGKey(0))
     assert action.shape == (2, L)
+    # Recorded: the new policy's layers, its action (the latent action) and the frozen decoder's
+    # layers, whose output's mode is the body's action (the env's `decoded_action`).
+    from vnl import record
+
+    ds = record.record(child, episodes=2, steps=4)
+    assert ds["action"].shape[-1] == 1 and ds["latent_action"].shape[-1] == L  # the body's one actuator; the latent
+    np.testing.assert_allclose(ds["policy_decoder_intention"].values, 2.0 * ds["latent_action"].values, atol=1e-6)
+    assert {"policy_hidden_0", "policy_decoder_hidden_0", "policy_decoder_hidden_1", "policy_decoder_output"} <= set(
+        ds.data_vars
+    )
+    obs = jp.asarray(ds["observation"].values[:, 0])
+    body = jax.vmap(child.env.decode)(2.0 * jp.asarray(ds["latent_action"].values[:, 0]), obs)
+    mode = jp.tanh(jp.asarray(ds["policy_decoder_output"].values[:, 0, :1]))  # tanh_normal's mode: tanh(loc)
+    np.testing.assert_allclose(body, mode, atol=1e-6)
+    np.testing.assert_allclose(ds["action"].values[:, 0], body, atol=1e-6)
     after = checkpoint.load(parent)[1]
     for a, b in zip(jax.tree.leaves(before), jax.tree.leaves(after), strict=True):
         np.testing.assert_array_equal(a, b)

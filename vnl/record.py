@@ -73,10 +73,15 @@ def network_activity(
     (`network.architecture: intention`, `vnl.ppo.intention`) has `encoder_hidden_<i>`, the latent's
     `encoder_intention_mean` and `encoder_intention_log_std`, `policy_intention` (the latent its
     decoder read: the mean, or a draw when not `deterministic`), the decoder's `policy_hidden_<i>`,
-    `policy_output`, and the value MLP's layers.
+    `policy_output`, and the value MLP's layers. A run through a frozen decoder (`decoder.run`,
+    `vnl.train.frozen_decoder`) adds the decoder's layers: `policy_decoder_intention` (the latent
+    it read: the action × `decoder.latent_scale`), `policy_decoder_hidden_<i>`,
+    `policy_decoder_output` and `body_action`, the action the decoder gave the body (a recording
+    stores it as `action`, and the policy's own as `latent_action`).
     """
     if run.config.network.core is not None:
-        return _recurrent_activity(run, obs, key, deterministic, core)
+        out, core = _recurrent_activity(run, obs, key, deterministic, core)
+        return _with_decoder(run, out, obs), core
     network = make_network(run.config, run.env)
     normalizer, policy_params, value_params = run.params
     act = ACTIVATIONS[run.config.network.activation]
@@ -95,7 +100,15 @@ def network_activity(
         out[f"{prefix}_output"] = dense[names[-1]] if prefix == "policy" else result
         if prefix == "policy":
             out["action"] = _action(network.parametric_action_distribution, result, key, deterministic)
-    return out, core
+    return _with_decoder(run, out, obs), core
+
+
+def _with_decoder(run: LoadedRun, out: dict[str, Any], obs: jax.Array) -> dict[str, Any]:
+    """`out` with a frozen decoder's layers (`decoder.run`: the env turns the action into the body's)."""
+    if hasattr(run.env, "decoder_activity"):
+        out.update(run.env.decoder_activity(out["action"], obs))
+        out["body_action"] = run.env.decode(run.env.latent(out["action"]), obs)
+    return out
 
 
 def _intention_activity(
@@ -193,6 +206,8 @@ def record(run: LoadedRun, episodes: int, steps: int, seed: int = 0, determinist
     e = run_episodes(env, actor, core, jax.random.PRNGKey(seed), episodes, steps, fields, observations=True)
     raw = {_STATE_NAMES.get(f, f): e.states[f][:, :steps] for f in fields}  # s_0 .. s_{T-1}
     raw.update(reward=e.reward, done=e.done, active=e.active, metrics=e.metrics, **e.acted)
+    if "body_action" in raw:  # a frozen decoder's run: `action` is what the body did, the policy's is the latent
+        raw["latent_action"], raw["action"] = raw["action"], raw.pop("body_action")
     layout = e.info0.get("layout") if isinstance(e.info0, dict) else None
     if layout is not None:  # a gaps corridor: each episode's platforms, (episodes, platforms)
         raw["layout_start"], raw["layout_length"] = np.asarray(layout.start), np.asarray(layout.length)
@@ -252,6 +267,8 @@ def _variables(run: LoadedRun, raw: dict[str, Any], observation: Any) -> tuple[d
             "body_parent": (("body",), np.asarray(m.body_parentid, np.int32)),
         }
     )
+    if "latent_action" in raw:
+        data["latent_action"] = (dims_et + ("latent_unit",), raw["latent_action"])
     if "reference_qpos" in raw:  # an imitation's reference, beside the body's own pose
         data["reference_qpos"] = (dims_et + ("qpos_index",), raw["reference_qpos"])
         data["reference_body_pos"] = (dims_et + ("body", "xyz"), raw["reference_body_pos"])

@@ -24,14 +24,19 @@ from vnl.tasks.contract import Env, State
 
 Decode = Callable[[jax.Array, jax.Array], jax.Array]
 """`decode(latent (L,), obs (O,)) -> action (A,)`, jit-able and pure."""
+Activity = Callable[[jax.Array, jax.Array], dict[str, jax.Array]]
+"""`activity(latent (..., L), obs (..., O)) -> {layer name: (..., units)}`: the decoder's layers."""
 
 
 class LatentActionEnv(Env):
     """`env` acted on through `decode` (see the module docstring). Flat observations only."""
 
-    def __init__(self, env: Env, decode: Decode, latent_size: int, scale: float = 1.0) -> None:
+    def __init__(
+        self, env: Env, decode: Decode, latent_size: int, scale: float = 1.0, activity: Activity | None = None
+    ) -> None:
         self.inner = env
         self.decode = decode
+        self.activity = activity
         self.latent_size = int(latent_size)
         self.scale = float(scale)
         # Not Env.__init__: the wrapped env owns the model (no second mjx.put_model).
@@ -40,10 +45,18 @@ class LatentActionEnv(Env):
         self._mjx_model = env.mjx_model
         self._n_substeps = env.n_substeps
 
+    def latent(self, action: jax.Array) -> jax.Array:
+        """The latent (..., L) of latent actions `action` (..., L): `scale` × action, NaN -> 0."""
+        return self.scale * jp.nan_to_num(action, nan=0.0, posinf=0.0, neginf=0.0)
+
     def body_action(self, state: State, action: jax.Array) -> jax.Array:
         """The body's action (A,) that the latent action `action` (L,) gives in `state`."""
-        latent = self.scale * jp.nan_to_num(action, nan=0.0, posinf=0.0, neginf=0.0)
-        return self.decode(latent, state.obs)
+        return self.decode(self.latent(action), state.obs)
+
+    def decoder_activity(self, action: jax.Array, obs: jax.Array) -> dict[str, jax.Array]:
+        """The decoder's layers for latent actions `action` (..., L) taken on `obs` (..., O)
+        (empty when the env was given no `activity`)."""
+        return {} if self.activity is None else self.activity(self.latent(action), obs)
 
     # The Env contract ----------------------------------------------------------------------------
     def reset(self, rng: jax.Array) -> State:
@@ -84,7 +97,9 @@ class LatentActionEnv(Env):
         return self.inner.previous_state_reads
 
     def with_model(self, mjx_model: Any) -> Env:
-        return LatentActionEnv(self.inner.with_model(mjx_model), self.decode, self.latent_size, self.scale)
+        return LatentActionEnv(
+            self.inner.with_model(mjx_model), self.decode, self.latent_size, self.scale, self.activity
+        )
 
     def set_per_env_fields(self, names: tuple[str, ...]) -> None:
         self.inner.set_per_env_fields(names)

@@ -51,8 +51,10 @@ def wrap(env: Any, decoder: Any, parent: Any) -> LatentActionEnv:
     parent_env = source.make_env()
     network = make_network(parent, parent_env)
     mine, theirs = matching_columns(parent_env, env, run_dir)
-    decode = decoder_fn(network, params, int(parent_env.observation_size), mine, theirs)
-    return LatentActionEnv(env, decode, network.policy_network.intention_size, decoder.latent_scale)
+    width = int(parent_env.observation_size)
+    decode = decoder_fn(network, params, width, mine, theirs)
+    activity = decoder_fn(network, params, width, mine, theirs, layers=True)
+    return LatentActionEnv(env, decode, network.policy_network.intention_size, decoder.latent_scale, activity)
 
 
 def matching_columns(parent_env: Any, env: Any, run_dir: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -87,19 +89,35 @@ def matching_columns(parent_env: Any, env: Any, run_dir: Path) -> tuple[np.ndarr
     return np.asarray(mine, np.int32), np.asarray(theirs, np.int32)
 
 
-def decoder_fn(network: Any, params: Any, width: int, mine: np.ndarray, theirs: np.ndarray) -> Any:
-    """`decode(latent (L,), obs (O,)) -> action (A,)`: the intention network `network`'s decoder
-    with `params` (normalizer, policy, value) fixed, reading the parent observation (width
-    `width`) whose columns `theirs` are `obs`'s columns `mine` (the rest, the reference, unread);
-    the action distribution's mode, as a deterministic policy's."""
+LAYERS = {"policy_intention": "policy_decoder_intention", "policy_hidden_": "policy_decoder_hidden_"}
+"""The recording's names of the frozen decoder's layers (the intention network's, renamed so that
+the new policy's own `policy_hidden_<i>` keep theirs), and `policy_decoder_output`, its head."""
+
+
+def decoder_fn(
+    network: Any, params: Any, width: int, mine: np.ndarray, theirs: np.ndarray, layers: bool = False
+) -> Any:
+    """`decode(latent (..., L), obs (..., O)) -> action (..., A)`: the intention network
+    `network`'s decoder with `params` (normalizer, policy, value) fixed, reading the parent
+    observation (width `width`) whose columns `theirs` are `obs`'s columns `mine` (the rest, the
+    reference, unread); the action distribution's mode, as a deterministic policy's. With
+    `layers`, `decode` returns the decoder's layers instead ({`LAYERS` name: (..., units)})."""
     policy: intention.IntentionPolicy = network.policy_network
     normalizer, policy_params = jax.tree.map(jp.asarray, (params[0], params[1]))
 
-    def decode(latent: jax.Array, obs: jax.Array) -> jax.Array:
+    def decode(latent: jax.Array, obs: jax.Array) -> Any:
         parent_obs = jp.zeros(obs.shape[:-1] + (width,), obs.dtype).at[..., theirs].set(obs[..., mine])
         normalized = policy.normalize(parent_obs, normalizer)
-        head, _, _ = policy.module.apply(policy_params, normalized, None, latent)
-        return network.parametric_action_distribution.mode(head)
+        if not layers:
+            head, _, _ = policy.module.apply(policy_params, normalized, None, latent)
+            return network.parametric_action_distribution.mode(head)
+        (head, _, _), state = policy.module.apply(policy_params, normalized, None, latent, mutable=["intermediates"])
+        out = {"policy_decoder_output": head}
+        for name, (value,) in state["intermediates"].items():
+            for old, new in LAYERS.items():
+                if name.startswith(old):
+                    out[new + name.removeprefix(old)] = value
+        return out
 
     return decode
 
