@@ -2,9 +2,10 @@
 
 `draw` renders frames of a fitted clip with its keypoints and writes them (`vnl mocap render`
 calls it; a tutorial can too). `overlay` returns the function
-`vnl.io.video.render_frames(..., decorate=...)` calls after each frame's scene is built: the keypoints as red spheres, the fitted markers (where the walker's
-bodies carry them) as green ones, and a grey line between each pair, whose length is the
-residual. Spheres are the renderer's own extra geoms (`mjvScene.geoms`), not bodies of the model,
+`vnl.io.video.render_frames(..., decorate=...)` calls after each frame's scene is built: the
+keypoints as red spheres, the fitted markers (where the walker's bodies carry them) as green ones,
+and a grey line between each pair, whose length is the residual. Spheres are the renderer's own
+extra geoms (`mjvScene.geoms`), not bodies of the model,
 so the walker's qpos is unchanged.
 """
 
