@@ -35,6 +35,12 @@ def test_decoding_targets_and_errors():
     y, labels = behaviour.target(ds, "joint_angle[walker/j3]")  # one column of a variable, by its label
     assert labels == ["joint_angle[walker/j3]"]
     np.testing.assert_array_equal(y[..., 0], ds["joint_angle"].values[..., 3])
+    obs = np.random.default_rng(0).normal(size=(E, T, 2))  # labels with brackets of their own (observations')
+    ds = ds.assign(observation=(("episode", "time", "observation_feature"), obs))
+    ds = ds.assign_coords(observation_feature=["ref_root_pos[0]", "ref_root_pos[1]"])
+    y, labels = behaviour.target(ds, "observation[ref_root_pos[1]]")
+    assert labels == ["observation[ref_root_pos[1]]"]
+    np.testing.assert_array_equal(y[..., 0], obs[..., 1])
     with pytest.raises(
         VnlError, match=r"no target 'nope' .* behaviour variables: joint_angle, joint_velocity, forward"
     ):

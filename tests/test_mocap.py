@@ -247,3 +247,23 @@ def test_the_markers_jacobian_is_their_finite_differences():
             q2[model.jnt_qposadr[model.dof_jntid[d]]] += eps
         numeric = (body.markers(model, q2[None], ids, kmap.offsets)[0] - ref) / eps
         np.testing.assert_allclose(jac[:, :, d], numeric, atol=2e-4)
+
+
+def test_render_draw_writes_a_png_of_a_clip_and_its_keypoints(tmp_path):
+    """`vnl.mocap.render.draw`, the Python call behind `vnl mocap render` (the mocap-to-nwb
+    tutorial calls it): 4 frames of a clip side by side, its markers and keypoints drawn."""
+    from matplotlib import image
+
+    from vnl.mocap import body, render
+    from vnl.mocap.clips import clip_from_qpos
+
+    model, kmap = body.fit_model("rodent"), maps.load_map("rodent")
+    q = np.repeat(model.qpos0[None], 6, axis=0)
+    marks = body.markers(model, q, kmap.body_ids(model), kmap.offsets)
+    clip = clip_from_qpos("still", model, q, 30.0, "rodent", keypoints=(marks + 0.003).astype(np.float32),
+                          keypoint_names=kmap.names, marker_offsets=kmap.offsets.astype(np.float32),
+                          marker_bodies=kmap.bodies)  # fmt: skip
+    assert render.draw(clip, tmp_path / "fit.png", width=40, height=30) == 4
+    assert image.imread(tmp_path / "fit.png").shape[:2] == (30, 160)
+    with pytest.raises(VnlError, match="outside the clip's 6 frames"):
+        render.draw(clip, tmp_path / "none.png", frames=(6, None))

@@ -50,3 +50,22 @@ def test_rat_to_neurons_notebook_runs(tmp_path):
     assert any("application/vnd.jupyter.widget-view+json" in o.get("data", {}) for o in outputs)  # the viewer
     rat = next((tmp_path / "runs").iterdir()) / "rat"
     assert (rat / "record.nwb").stat().st_size > 100_000
+
+
+def test_mocap_to_nwb_notebook_runs(tmp_path):
+    nb = execute("mocap-to-nwb", tmp_path)
+    outputs = [o for cell in nb.cells if cell.cell_type == "code" for o in cell.get("outputs", [])]
+    assert not [o for o in outputs if o.get("output_type") == "error"]
+    text = "".join(o.get("text", "") for o in outputs if o.get("output_type") == "stream")
+    assert "23 keypoints, 1000 frames at 30 frames/s" in text
+    assert "residual (mm) per keypoint, median / 90th percentile" in text and "\n  all " in text
+    assert "step 4096: reward" in text and "encoder_intention_mean      (8, 200, 60)" in text
+    assert "the decoder read the latent's mean: True" in text
+    assert "critical issues or best-practice violations: 0" in text
+    assert "encoder_intention_mean in NWB: 60 units" in text
+    assert "observation[ref_root_pos[0]] from encoder_intention_mean: held-out R²" in text and "control (shift)" in text
+    images = [o for o in outputs if "image/png" in o.get("data", {})]
+    assert len(images) >= 2  # the fitted rat beside its keypoints, the decoding
+    runs = next((tmp_path / "runs").iterdir())
+    assert (runs / "rat_clips.h5").is_file() and (runs / "rat_fit.png").stat().st_size > 10_000
+    assert (runs / "rat" / "record.nwb").stat().st_size > 100_000

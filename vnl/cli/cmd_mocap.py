@@ -158,11 +158,7 @@ def run_render(args: argparse.Namespace) -> int:
 def _render(args: argparse.Namespace, clips: str | Path, name: str | None, frames: tuple[int, int | None] | None,
             camera: str | None, width: int, height: int) -> None:  # fmt: skip
     """Draws a clip (its walker, keypoints in red, fitted markers in green) to `--out`/`--render`."""
-    import numpy as np
-
-    from vnl import durable
-    from vnl.io import video
-    from vnl.mocap import body, maps, render
+    from vnl.mocap import render
     from vnl.mocap.clips import load_clips
 
     if not args.gl:
@@ -172,24 +168,5 @@ def _render(args: argparse.Namespace, clips: str | Path, name: str | None, frame
     clip = next((c for c in found if c.name == name), None) if name else found[0]
     if clip is None:
         raise VnlError(f"{clips} has no clip {name!r}; its clips: {', '.join(c.name for c in found)}")
-    start, end = frames or (0, None)
-    rows = np.arange(clip.frames)[start:end]
-    if rows.size == 0:
-        raise VnlError(f"frames {start}:{end} are outside the clip's {clip.frames} frames")
-    if out.suffix == ".png":
-        rows = rows[np.linspace(0, rows.size - 1, min(4, rows.size)).round().astype(int)]
-    model = body.fit_model(clip.walker, floor=True)
-    marks = None
-    if clip.marker_offsets is not None:
-        ids = maps.resolve_bodies(model, clip.marker_bodies, str(clips))
-        marks = body.markers(model, clip.qpos[rows], ids, clip.marker_offsets)
-    decorate = render.overlay(clip.keypoints[rows], marks) if clip.keypoints is not None else None
-    images = video.render_frames(model, clip.qpos[rows], camera, width, height, decorate=decorate)
-    if out.suffix == ".png":
-        from matplotlib import image
-
-        durable.write_atomic(out, writer=lambda tmp: image.imsave(tmp, np.concatenate(list(images), axis=1),
-                                                                  format="png"))  # fmt: skip
-    else:
-        video.write_mp4(images, out, clip.fps)
-    print(f"wrote {len(rows)} frames to {out}")
+    drawn = render.draw(clip, out, frames, camera, width, height, where=str(clips))
+    print(f"wrote {drawn} frames to {out}")

@@ -275,10 +275,11 @@ def features(ds: Any, names: tuple[str, ...] | list[str] = ENCODING_FEATURES) ->
 
 
 def _column(ds: Any, name: str) -> tuple[str, Any] | None:
-    """`NAME[label]`: the variable NAME and its column `label`, when the recording has both."""
+    """`NAME[label]`: the variable NAME and its column `label`, when the recording has both (a
+    label may hold brackets of its own: `observation[ref_root_pos[0]]`)."""
     if not name.endswith("]") or "[" not in name:
         return None
-    var, _, label = name[:-1].rpartition("[")
+    var, _, label = name[:-1].partition("[")
     if var not in ds.data_vars or ds[var].ndim != 3 or ds[var].dims[:2] != model.STEP_DIMS:
         return None
     labels = [str(c) for c in np.asarray(ds[ds[var].dims[2]].values)]
