@@ -6,6 +6,7 @@ The parent: tests/tiny_env.py's point mass observing its target, the target decl
 reference (as in tests/test_intention.py); the child env: the point mass without the target."""
 
 import dataclasses
+import shutil
 
 import jax
 import jax.numpy as jp
@@ -153,8 +154,10 @@ def test_bad_frozen_decoders_are_refused(parent, tmp_path):
         build("test_point", SMALL, decoder={"step": 0})
     with pytest.raises(VnlError, match="latent_scale"):
         build("test_point", SMALL, decoder={"run": str(parent), "latent_scale": 0.0})
-    plain = tmp_path / "plain"
-    trainer.train(build("test_point", SMALL, ppo={"num_timesteps": K, "num_evals": 1}), plain, say=quiet)
+    plain = tmp_path / "plain"  # the parent's directory with a config of another network
+    shutil.copytree(parent, plain)
+    text = (plain / "config.yaml").read_text()
+    (plain / "config.yaml").write_text(text.replace("architecture: intention", "architecture: brax"))
     with pytest.raises(VnlError, match="comes from an intention network"):
         build("test_point", SMALL, decoder={"run": str(plain)}).make_env()
     with pytest.raises(VnlError, match="decoder.run: run directory not found"):
