@@ -250,11 +250,12 @@ def test_the_markers_jacobian_is_their_finite_differences():
 
 
 def test_render_draw_writes_a_png_of_a_clip_and_its_keypoints(tmp_path):
-    """`vnl.mocap.render.draw`, the Python call behind `vnl mocap render` (the mocap-to-nwb
+    """`vnl.io.clip_video.draw`, the Python call behind `vnl mocap render` (the mocap-to-nwb
     tutorial calls it): 4 frames of a clip side by side, its markers and keypoints drawn."""
     from matplotlib import image
 
-    from vnl.mocap import body, render
+    from vnl.io import clip_video
+    from vnl.mocap import body
     from vnl.mocap.clips import clip_from_qpos
 
     model, kmap = body.fit_model("rodent"), maps.load_map("rodent")
@@ -263,7 +264,7 @@ def test_render_draw_writes_a_png_of_a_clip_and_its_keypoints(tmp_path):
     clip = clip_from_qpos("still", model, q, 30.0, "rodent", keypoints=(marks + 0.003).astype(np.float32),
                           keypoint_names=kmap.names, marker_offsets=kmap.offsets.astype(np.float32),
                           marker_bodies=kmap.bodies)  # fmt: skip
-    assert render.draw(clip, tmp_path / "fit.png", width=40, height=30) == 4
+    assert clip_video.draw(clip, tmp_path / "fit.png", width=40, height=30) == 4
     assert image.imread(tmp_path / "fit.png").shape[:2] == (30, 160)
     with pytest.raises(VnlError, match="outside the clip's 6 frames"):
-        render.draw(clip, tmp_path / "none.png", frames=(6, None))
+        clip_video.draw(clip, tmp_path / "none.png", frames=(6, None))

@@ -158,7 +158,7 @@ def run_render(args: argparse.Namespace) -> int:
 def _render(args: argparse.Namespace, clips: str | Path, name: str | None, frames: tuple[int, int | None] | None,
             camera: str | None, width: int, height: int) -> None:  # fmt: skip
     """Draws a clip (its walker, keypoints in red, fitted markers in green) to `--out`/`--render`."""
-    from vnl.mocap import render
+    from vnl.io import clip_video
     from vnl.mocap.clips import load_clips
 
     if not args.gl:
@@ -168,5 +168,5 @@ def _render(args: argparse.Namespace, clips: str | Path, name: str | None, frame
     clip = next((c for c in found if c.name == name), None) if name else found[0]
     if clip is None:
         raise VnlError(f"{clips} has no clip {name!r}; its clips: {', '.join(c.name for c in found)}")
-    drawn = render.draw(clip, out, frames, camera, width, height, where=str(clips))
+    drawn = clip_video.draw(clip, out, frames, camera, width, height, where=str(clips))
     print(f"wrote {drawn} frames to {out}")

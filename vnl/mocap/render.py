@@ -1,7 +1,7 @@
 """Keypoints drawn beside a fitted walker: spheres and lines added to MuJoCo's scene per frame.
 
-`draw` renders frames of a fitted clip with its keypoints and writes them (`vnl mocap render`
-calls it; a tutorial can too). `overlay` returns the function
+`vnl.io.clip_video.draw` renders frames of a fitted clip with its keypoints and writes them
+(`vnl mocap render` calls it). `overlay` returns the function
 `vnl.io.video.render_frames(..., decorate=...)` calls after each frame's scene is built: the
 keypoints as red spheres, the fitted markers (where the walker's bodies carry them) as green ones,
 and a grey line between each pair, whose length is the residual. Spheres are the renderer's own
@@ -12,16 +12,9 @@ so the walker's qpos is unchanged.
 from __future__ import annotations
 
 from collections.abc import Callable
-from pathlib import Path
-from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
-
-from vnl.errors import VnlError
-
-if TYPE_CHECKING:
-    from vnl.mocap.clips import Clip
 
 KEYPOINT_RGBA = np.array([0.9, 0.15, 0.1, 1.0], np.float32)
 MARKER_RGBA = np.array([0.1, 0.8, 0.2, 1.0], np.float32)
@@ -58,36 +51,3 @@ def overlay(keypoints: np.ndarray, markers: np.ndarray | None = None,
                                          markers[t, k].astype(np.float64))  # fmt: skip
 
     return decorate
-
-
-def draw(clip: Clip, out: str | Path, frames: tuple[int, int | None] | None = None, camera: str | None = None,
-         width: int = 480, height: int = 360, where: str = "the clip") -> int:  # fmt: skip
-    """Draws `clip` (its walker, keypoints in red, fitted markers in green) to `out`: an .mp4 of
-    frames START:END (`frames`; None: all), or a .png of 4 of them side by side. Needs OpenGL
-    (`vnl.cli.process.configure_process` sets it up). Returns the number of frames drawn."""
-    from vnl import durable
-    from vnl.io import video
-    from vnl.mocap import body, maps
-
-    out = Path(out)
-    start, end = frames or (0, None)
-    rows = np.arange(clip.frames)[start:end]
-    if rows.size == 0:
-        raise VnlError(f"frames {start}:{end} are outside the clip's {clip.frames} frames")
-    if out.suffix == ".png":
-        rows = rows[np.linspace(0, rows.size - 1, min(4, rows.size)).round().astype(int)]
-    model = body.fit_model(clip.walker, floor=True)
-    marks = None
-    if clip.marker_offsets is not None:
-        ids = maps.resolve_bodies(model, clip.marker_bodies, where)
-        marks = body.markers(model, clip.qpos[rows], ids, clip.marker_offsets)
-    decorate = overlay(clip.keypoints[rows], marks) if clip.keypoints is not None else None
-    images = video.render_frames(model, clip.qpos[rows], camera, width, height, decorate=decorate)
-    if out.suffix == ".png":
-        from matplotlib import image
-
-        durable.write_atomic(out, writer=lambda tmp: image.imsave(tmp, np.concatenate(list(images), axis=1),
-                                                                  format="png"))  # fmt: skip
-    else:
-        video.write_mp4(images, out, clip.fps)
-    return int(rows.size)
