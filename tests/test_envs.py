@@ -19,13 +19,21 @@ from vnl.errors import VnlError
 from vnl.tasks.run import Run
 
 # Each distinct registered env (aliases such as `run` share `rodent_run`'s defaults) is compiled
-# once per test module: one jitted rollout of STEPS random-action control steps, vmapped over a
+# once per test module: one jitted rollout of `steps(name, impl)` random-action control steps, vmapped over a
 # few envs; the last env of the batch gets zero actions.
 # Brax's ant and humanoid (`brax_*_run`, for comparing physics backends) run the same Run task
 # code as ant_run/humanoid_run; test_robustness and benchmarks/backend_throughput.py cover them.
 NAMES = [n for n in vnl.names() if n not in registry.ALIASES and not n.startswith("brax_")]
 RUN_NAMES = [n for n in NAMES if registry.entry(n).factory is Run]
 STEPS = 1000
+# The rat on MJX: 400 steps (8 s). Its 1000-step rollouts cost 290-340 s each under CI's load and
+# the suite ran 77 min (2026-11-28); the blow-ups these tests caught came within 132 steps.
+RAT_MJX_STEPS = 400
+
+
+def steps(name, impl="jax"):
+    """The length of `name`'s random rollout on physics `impl`."""
+    return RAT_MJX_STEPS if impl == "jax" and name.startswith("rodent") else STEPS
 FIELDS = (
     "time",
     "qpos",
@@ -100,7 +108,7 @@ def _random_rollout(name, impl):
     def go(key):
         k0, k1 = jax.random.split(key)
         s0 = jax.vmap(e.reset)(jax.random.split(k0, b))
-        actions = jax.random.uniform(k1, (STEPS, b, e.action_size), minval=-1, maxval=1)
+        actions = jax.random.uniform(k1, (steps(name, impl), b, e.action_size), minval=-1, maxval=1)
         actions = actions.at[:, -1].set(0.0)
 
         def body(s, a):
@@ -170,8 +178,9 @@ def test_reset_step_shapes_and_finiteness(name, impl):
     b = batch_size(name)
     s0, traj, _ = random_rollout(name, impl)
     assert s0.obs.shape == (b, e.observation_size)
-    assert traj.obs.shape == (STEPS, b, e.observation_size)
-    assert traj.reward.shape == (STEPS, b) and traj.done.shape == (STEPS, b)
+    n = steps(name, impl)
+    assert traj.obs.shape == (n, b, e.observation_size)
+    assert traj.reward.shape == (n, b) and traj.done.shape == (n, b)
     assert np.isfinite(traj.obs).all() and np.isfinite(traj.reward).all()
     for k, v in traj.metrics.items():
         assert np.isfinite(v).all(), k
@@ -663,7 +672,7 @@ def test_c_and_mjx_agree_from_the_same_states(name, impl):
     within the tolerances above (docs/experiments/physics-on-cpu.md)."""
     ec = env(name, "c")
     s0, traj, actions = random_rollout(name)
-    ts = np.asarray([t for t in SAMPLE_T if t + 1 < STEPS])
+    ts = np.asarray([t for t in SAMPLE_T if t + 1 < steps(name)])
     at = lambda tree, t: jax.tree.map(lambda x: x[t], tree)  # noqa: E731
     keep = ("time", "qpos", "qvel", "act", "qacc_warmstart", "mocap_pos")
     states = at(traj, ts)  # (T, B, ...)

@@ -96,15 +96,23 @@ def show(frames: Sequence[np.ndarray] | np.ndarray, fps: float, width: int | Non
 def read_mp4(path: str | Path) -> np.ndarray:
     """Frames of a video as uint8 (T, H, W, 3).
 
-    Reads with imageio-ffmpeg: mediapy 1.2.7's reader passes `-vsync`, which ffmpeg 9 removed.
+    Runs imageio-ffmpeg's ffmpeg directly: mediapy 1.2.7's reader passes `-vsync`, which ffmpeg 9
+    removed, and imageio-ffmpeg's reader starts ffmpeg with a `preexec_fn`, which forces a fork of
+    this process: a process holding gigabytes (a test worker with compiled programs) got ENOMEM.
     """
+    import re
+    import subprocess
+
     import imageio_ffmpeg
 
-    reader = imageio_ffmpeg.read_frames(str(path), pix_fmt="rgb24")
-    meta = next(reader)
-    width, height = meta["size"]
-    frames = [np.frombuffer(f, np.uint8).reshape(height, width, 3) for f in reader]
-    return np.stack(frames)
+    cmd = [imageio_ffmpeg.get_ffmpeg_exe(), "-nostdin", "-i", str(path), "-f", "rawvideo", "-pix_fmt", "rgb24", "-"]
+    p = subprocess.run(cmd, capture_output=True, check=False)
+    size = re.search(rb"Stream #\S+.*?Video: .*?[ ,](\d{2,5})x(\d{2,5})[ ,\[\n]", p.stderr)
+    if p.returncode != 0 or size is None:
+        tail = p.stderr.decode(errors="replace").strip().splitlines()[-1:]
+        raise OSError(f"ffmpeg could not read {str(path)!r}: {tail[0] if tail else 'no output'}")
+    width, height = int(size.group(1)), int(size.group(2))
+    return np.frombuffer(p.stdout, np.uint8).reshape(-1, height, width, 3)
 
 
 def _mediapy():  # noqa: ANN202 - returns the mediapy module

@@ -84,7 +84,10 @@ class ImitateConfig(WalkerTaskConfig):
     episode_length: int = 500  # control steps; a clip's end usually comes first
     physics_timestep: float = 0.002
     n_substeps: int = 10
-    iterations: int = 4  # the rat needs 4 Newton iterations at 2 ms (see run.RODENT_RUN)
+    # 8 Newton and line-search iterations, not rodent_run's 4: from clip poses in motion, MJX's rat
+    # blew up 7 times in 6,000 random-action steps with 4, none with 8 (docs/experiments/rat-imitate.md)
+    iterations: int = 8
+    ls_iterations: int = 8
     reset_noise_scale: float = 0.0  # ± uniform noise (rad) on the joints of the reference pose at reset
     floor_size: float = 10.0
     # A clips file (vnl.mocap.clips; `vnl mocap fit` writes them); "": vnl's own clips of the walker.

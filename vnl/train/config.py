@@ -119,14 +119,14 @@ class DecoderConfig:
     config_hash: str | None = None
 
     def validate(self) -> None:
-        if self.run is None and (self.step is not None or self.config_hash is not None):
-            raise VnlError("decoder.step needs decoder.run (the run whose intention network's decoder to reuse)")
+        # Messages name the key without the section: the caller (typed_config) prefixes "decoder.".
+        for key in ("step", "config_hash"):
+            if self.run is None and getattr(self, key) is not None:
+                raise VnlError(f"{key} needs decoder.run (the run whose intention network's decoder to reuse)")
         if self.step is not None and self.step < 0:
-            raise VnlError(f"decoder.step must be >= 0, got {self.step}")
+            raise VnlError(f"step must be >= 0, got {self.step}")
         if not 0 < self.latent_scale <= 100:
-            raise VnlError(
-                f"decoder.latent_scale must be in (0, 100] (latent units per action unit), got {self.latent_scale}"
-            )
+            raise VnlError(f"latent_scale must be in (0, 100] (latent units per action unit), got {self.latent_scale}")
 
 
 @dataclasses.dataclass(frozen=True)
