@@ -34,6 +34,8 @@ RAT_MJX_STEPS = 400
 def steps(name, impl="jax"):
     """The length of `name`'s random rollout on physics `impl`."""
     return RAT_MJX_STEPS if impl == "jax" and name.startswith("rodent") else STEPS
+
+
 FIELDS = (
     "time",
     "qpos",
