@@ -26,8 +26,9 @@ from vnl.tasks.run import Run
 NAMES = [n for n in vnl.names() if n not in registry.ALIASES and not n.startswith("brax_")]
 RUN_NAMES = [n for n in NAMES if registry.entry(n).factory is Run]
 STEPS = 1000
-# The rat on MJX: 400 steps (8 s). Its 1000-step rollouts cost 290-340 s each under CI's load and
-# the suite ran 77 min (2026-11-28); the blow-ups these tests caught came within 132 steps.
+# The rat on MJX: 400 steps (8 s). Its 1000-step rollouts took 290-340 s each in a full suite on a
+# 2-core machine, and CI's suite ran 77 min (2026-11-28); rodent_run's took 175 s at 400 steps.
+# The blow-ups these tests caught came within 132 steps.
 RAT_MJX_STEPS = 400
 
 
