@@ -34,8 +34,14 @@ def test_clips_round_trip(tmp_path):
     _, a = _clip("a")
     _, b = _clip("b", frames=3)
     kp = np.ones((3, 2, 3), np.float32)
-    b = Clip(**{**b.__dict__, "keypoints": kp, "keypoint_names": ("nose", "tail"),
-                "residual_mm": np.full((3, 2), 4.0, np.float32)})
+    b = Clip(
+        **{
+            **b.__dict__,
+            "keypoints": kp,
+            "keypoint_names": ("nose", "tail"),
+            "residual_mm": np.full((3, 2), 4.0, np.float32),
+        }
+    )
     save_clips(tmp_path / "c.h5", [a, b])
     got = load_clips(tmp_path / "c.h5")
     assert [c.name for c in got] == ["a", "b"]
@@ -43,7 +49,12 @@ def test_clips_round_trip(tmp_path):
         for key in ("qpos", "qvel", "xpos", "xquat"):
             np.testing.assert_array_equal(getattr(want, key), getattr(have, key))
         assert (have.walker, have.fps, have.source, have.body_names, have.joint_names) == (
-            want.walker, want.fps, want.source, want.body_names, want.joint_names)
+            want.walker,
+            want.fps,
+            want.source,
+            want.body_names,
+            want.joint_names,
+        )
     assert got[0].keypoints is None and got[1].keypoint_names == ("nose", "tail")
     np.testing.assert_array_equal(got[1].residual_mm, 4.0)
 
@@ -58,6 +69,7 @@ def test_bad_clips_are_refused_with_their_reason(tmp_path):
     with pytest.raises(VnlError, match="not a readable HDF5"):
         load_clips(tmp_path / "x.h5")
     import h5py
+
     with h5py.File(tmp_path / "y.h5", "w") as f:
         f["z"] = 1
     with pytest.raises(VnlError, match="not a vnl clips file"):

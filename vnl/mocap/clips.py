@@ -76,8 +76,10 @@ class Clip:
             problems.append(f"residual_mm is {self.residual_mm.shape}, expected ({t}, {len(self.keypoint_names)})")
         k = len(self.keypoint_names)
         if self.marker_offsets is not None and (self.marker_offsets.shape != (k, 3) or len(self.marker_bodies) != k):
-            problems.append(f"marker_offsets is {self.marker_offsets.shape} with {len(self.marker_bodies)} bodies, "
-                            f"expected ({k}, 3) and {k}")
+            problems.append(
+                f"marker_offsets is {self.marker_offsets.shape} with {len(self.marker_bodies)} bodies, "
+                f"expected ({k}, 3) and {k}"
+            )
         if not (self.fps > 0 and np.isfinite(self.fps)):
             problems.append(f"fps must be positive, got {self.fps}")
         if t < 2:
@@ -137,10 +139,20 @@ def load_clips(path: str | Path) -> list[Clip]:
         for name, g in f.get("clips", {}).items():
             arrays = {k: np.asarray(g[k]) for k in _ARRAYS}
             optional = {k: (np.asarray(g[k]) if k in g else None) for k in _OPTIONAL}
-            strs = {k: tuple(v.decode() if isinstance(v, bytes) else str(v) for v in g.attrs.get(k, []))
-                    for k in _NAMES}
-            clips.append(Clip(name=name, walker=str(g.attrs["walker"]), fps=float(g.attrs["fps"]),
-                              source=str(g.attrs.get("source", "")), **arrays, **optional, **strs))
+            strs = {
+                k: tuple(v.decode() if isinstance(v, bytes) else str(v) for v in g.attrs.get(k, [])) for k in _NAMES
+            }
+            clips.append(
+                Clip(
+                    name=name,
+                    walker=str(g.attrs["walker"]),
+                    fps=float(g.attrs["fps"]),
+                    source=str(g.attrs.get("source", "")),
+                    **arrays,
+                    **optional,
+                    **strs,
+                )
+            )
     if not clips:
         raise VnlError(f"{path}: holds no clips")
     return clips
@@ -175,6 +187,16 @@ def clip_from_qpos(
         qvel[-1] = qvel[-2]
     joints = tuple(mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j) or f"joint{j}" for j in range(model.njnt))
     bodies = tuple(mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, b) or f"body{b}" for b in range(model.nbody))
-    return Clip(name=name, walker=walker, fps=fps, qpos=qpos.astype(np.float32), qvel=qvel.astype(np.float32),
-                xpos=xpos.astype(np.float32), xquat=xquat.astype(np.float32), joint_names=joints,
-                body_names=bodies, source=source, **extra)
+    return Clip(
+        name=name,
+        walker=walker,
+        fps=fps,
+        qpos=qpos.astype(np.float32),
+        qvel=qvel.astype(np.float32),
+        xpos=xpos.astype(np.float32),
+        xquat=xquat.astype(np.float32),
+        joint_names=joints,
+        body_names=bodies,
+        source=source,
+        **extra,
+    )
