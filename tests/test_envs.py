@@ -27,7 +27,7 @@ NAMES = [n for n in vnl.names() if n not in registry.ALIASES and not n.startswit
 RUN_NAMES = [n for n in NAMES if registry.entry(n).factory is Run]
 STEPS = 1000
 # The rat on MJX: 200 steps (4 s). Its 1000-step rollouts took 290-340 s each in a full suite on a
-# 2-core machine, and CI's suite ran 77 min (2026-11-28); at 400 steps 134-240 s (a full suite here,
+# 2-core machine, and CI's suite came close to its limit; at 400 steps 134-240 s (a full suite here,
 # 2026-11-28), of which rodent_run's program took 25-30 s to trace and 65-70 s to compile (97 s in
 # all at 100 steps, 122 s at 400), and 2-5 s to run; at 200 steps rodent_run's test took 141 s and
 # rodent_run_gaps's 170 s (231 at 400). The blow-ups these tests caught came within 132 steps;
