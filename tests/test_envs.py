@@ -112,8 +112,8 @@ def _random_rollout(name, impl):
 
     @jax.jit
     def go(key):
-        k0, k1 = jax.random.split(key)
-        s0 = jax.vmap(e.reset)(jax.random.split(k0, b))
+        resets, k1 = rollout_keys(name, key)
+        s0 = jax.vmap(e.reset)(resets)
         actions = jax.random.uniform(k1, (steps(name, impl), b, e.action_size), minval=-1, maxval=1)
         actions = actions.at[:, -1].set(0.0)
 
@@ -125,7 +125,17 @@ def _random_rollout(name, impl):
         _, traj = jax.lax.scan(body, s0, actions)
         return s0.replace(data=_pick(s0.data)), traj, actions
 
-    return jax.device_get(go(jax.random.PRNGKey(0)))
+    return jax.device_get(go(jax.random.PRNGKey(ROLLOUT_SEED)))
+
+
+ROLLOUT_SEED = 0
+
+
+def rollout_keys(name, key):
+    """(reset keys, shape (batch_size(name), 2); the actions' key) that `random_rollout` draws from
+    `key` (`jax.random.PRNGKey(ROLLOUT_SEED)`)."""
+    k0, k1 = jax.random.split(key)
+    return jax.random.split(k0, batch_size(name)), k1
 
 
 @pytest.mark.usefixtures("point_envs")

@@ -310,15 +310,15 @@ def test_mujoco_c_and_mjx_agree_on_a_few_steps():
     """The same resets and random actions under MuJoCo C and MJX: the same maze, boxes, rewards and
     ends, the root within 2 mm and the joints within 0.05 rad after each of 3 control steps (with
     contacts the two drift apart slowly: float32 MJX against float64 C, 1.06 mm at the third step
-    of these states, 2026-11-28; tests/test_physics.py
-    checks a step without contacts to float32 precision). MJX's side is tests/test_envs.py's random
+    of these states, 2026-11-28; tests/test_physics.py checks a step without contacts to float32
+    precision). MJX's side is tests/test_envs.py's random
     rollout of this env (its keys and actions), so the rat in the maze is compiled for MJX once
     (the rat's MJX compile takes ~100 s here; this test compiled its own until 2026-11-28)."""
-    from test_envs import random_rollout  # tests/ is on sys.path; its rollout is cached per worker
+    from test_envs import ROLLOUT_SEED, random_rollout, rollout_keys  # tests/ is on sys.path; cached per worker
 
     s0, traj, actions = random_rollout("rodent_maze_forage")
     e = env()
-    keys = jax.random.split(jax.random.split(jax.random.PRNGKey(0), 2)[0], actions.shape[1])  # as the rollout's
+    keys, _ = rollout_keys("rodent_maze_forage", jax.random.PRNGKey(ROLLOUT_SEED))
     state = jax.jit(jax.vmap(e.reset))(keys)
     np.testing.assert_array_equal(np.asarray(state.info["maze"].walls), s0.info["maze"].walls)
     step = jax.jit(jax.vmap(e.step))
