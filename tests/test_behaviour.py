@@ -26,6 +26,17 @@ def test_gap_distance_from_the_corridor_layout():
     np.testing.assert_allclose(behaviour.gap_distance(start, length, x)[0], [1.8, 0.1, 0.0, np.nan])
 
 
+def test_gap_time_counts_down_to_the_next_gap():
+    # Episode 0 reaches a gap at steps 3-4 and another at 7; episode 1 ends (inactive) before its gap.
+    nan = np.nan
+    distance = np.array([[0.3, 0.2, 0.1, 0.0, 0.0, 0.4, 0.2, 0.0, 0.5], [0.3, 0.2, 0.1, 0.05, 0.0, 0, 0, 0, 0]])
+    active = np.ones(distance.shape, bool)
+    active[1, 4:] = False
+    t = behaviour.gap_time(distance, active, dt=0.5)
+    np.testing.assert_allclose(t[0], [1.5, 1.0, 0.5, 0.0, 0.0, 1.0, 0.5, 0.0, nan])
+    np.testing.assert_allclose(t[1], [nan] * 9)
+
+
 def test_forward_speed_is_along_the_heading():
     v = np.array([[1.0, 2.0, 5.0]])
     yaw = np.pi / 2  # facing +y
@@ -71,5 +82,9 @@ def test_behaviour_features_agree_with_the_task(rat_recording):
     )
     # The gap distance is measured from the episode's own corridor.
     assert np.nanmin(ds["gap_distance"].values) >= 0 and np.isfinite(ds["gap_distance"].values[active]).any()
+    # The time to the next gap comes from the gap distance at the task's control step (this
+    # untrained rat never reaches a gap: NaN throughout; test_gap_time_counts_down_to_the_next_gap).
+    expected = behaviour.gap_time(ds["gap_distance"].values, active, ds.attrs["control_dt"])
+    np.testing.assert_array_equal(ds["gap_time"].values, expected)
     assert ds.attrs["walker"] == "rodent" and ds["walker_body"].values.sum() > 30
     assert ds["joint_angle"].shape[-1] == len(ds["joint"]) > 30

@@ -78,7 +78,8 @@ def test_the_export_reads_back_for_the_analyses(rat_recording):
     back = recording.read(path)
     a, b = ds["active"].values > 0, back["active"].values > 0
     assert a.sum(1).tolist() == b.sum(1).tolist() and model.layers(back) == model.layers(ds)
-    for name in (*model.layers(ds), *behaviour.ENCODING_FEATURES, "gait_phase", "gap_distance", "reward", "action"):
+    kept = ("gait_phase", "gap_distance", "gap_time", "reward", "action")
+    for name in (*model.layers(ds), *behaviour.ENCODING_FEATURES, *kept):
         np.testing.assert_allclose(back[name].values[b], ds[name].values[a], rtol=1e-5, atol=1e-5, err_msg=name)
     assert not {"qpos", "qvel", "body_quat", "x_velocity"} & set(back.data_vars)
     assert back.attrs["checkpoint_step"] == 0 and back.attrs["env"] == "rodent_run_gaps"

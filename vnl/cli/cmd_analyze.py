@@ -38,7 +38,7 @@ def add(sub: Any) -> None:
     p.add_argument(
         "--target",
         default="forward_speed",
-        help="decoding: forward_speed, gait_phase, gap_distance, joint:<joint name>, any per-step variable "
+        help="decoding: forward_speed, gait_phase, gap_distance, gap_time, joint:<joint name>, any per-step variable "
         "(an NWB file's behaviour: snout, speed, ...) or one column of one (snout[x]) (default: forward_speed)",
     )
     p.add_argument("--features", help="encoding and states: comma-separated behaviour variables (encoding's "

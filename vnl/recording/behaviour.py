@@ -17,6 +17,9 @@ From the recorded physics states of a walker task (the rollout's qpos, qvel and 
   after the last touchdown of an episode.
 - `gap_distance` (episode, time), m (gaps corridors only): how far ahead along x the near edge of
   the next gap is from the root body, 0 while over a gap; NaN past the last gap.
+- `gap_time` (episode, time), s (gaps corridors only): how long until the root body is over the
+  next gap (the leap: when the body passes the near edge), 0 while over a gap; NaN when the
+  episode ends before it gets there.
 - `joint_angle`, `joint_velocity` (episode, time, joint), rad (m) and rad/s (m/s): the walker's
   hinge and slide joints (the same numbers as `qpos`/`qvel`, one named column per joint).
 - `event_fall`, `event_gap_crossed`, `event_bowl_left` (episode, time), counts: task events at the
@@ -44,7 +47,7 @@ Variable = tuple[tuple[str, ...], np.ndarray, dict[str, str]]
 
 ENCODING_FEATURES = ("joint_angle", "joint_velocity", "com_velocity", "forward_speed", "foot_contact")
 """The features an encoding model predicts each unit from, by default."""
-TARGETS = ("forward_speed", "gait_phase", "gap_distance", "joint:<name>", "<any per-step variable>")
+TARGETS = ("forward_speed", "gait_phase", "gap_distance", "gap_time", "joint:<name>", "<any per-step variable>")
 
 EVENTS = {  # event name -> the task measure that counts it
     "gap_crossed": "measure/gaps_crossed",
@@ -142,6 +145,21 @@ def gap_distance(start: np.ndarray, length: np.ndarray, x: np.ndarray) -> np.nda
     return np.where(np.isfinite(dist), dist, np.nan)
 
 
+def gap_time(distance: np.ndarray, active: np.ndarray, dt: float) -> np.ndarray:
+    """Seconds (E, T) from each active step to the first active step at or after it whose
+    `distance` (E, T, `gap_distance`) is 0 (the root body over a gap); NaN where none follows."""
+    over = (distance == 0) & active
+    out = np.full(distance.shape, np.nan)
+    t_ = distance.shape[1]
+    for e in range(distance.shape[0]):
+        nxt = np.full(t_ + 1, -1)  # the next step over a gap, from the end backwards
+        for t in range(t_ - 1, -1, -1):
+            nxt[t] = t if over[e, t] else nxt[t + 1]
+        steps = nxt[:t_] - np.arange(t_)
+        out[e] = np.where((nxt[:t_] >= 0) & active[e], steps * dt, np.nan)
+    return out
+
+
 def events(metrics: dict[str, np.ndarray], done: np.ndarray, active: np.ndarray) -> dict[str, np.ndarray]:
     """{"fall": ..., "gap_crossed": ..., "bowl_left": ...} (E, T) counts at the step they happen
     (the last two where the task measures them); see the module docstring."""
@@ -221,6 +239,8 @@ def variables(env: Any, raw: dict[str, Any]) -> tuple[dict[str, Variable], dict[
         dist = gap_distance(np.asarray(raw["layout_start"]), np.asarray(raw["layout_length"]), x)
         desc = "distance along x from the root body to the near edge of the next gap (0 over a gap)"
         out["gap_distance"] = (et, np.where(active, dist, np.nan), {"units": "m", "description": desc})
+        desc = "seconds until the root body is over the next gap (0 over a gap; NaN if the episode ends first)"
+        out["gap_time"] = (et, gap_time(dist, active, float(env.dt)), {"units": "s", "description": desc})
     return out, coords, attrs
 
 

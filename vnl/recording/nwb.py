@@ -54,6 +54,7 @@ BEHAVIOUR_SERIES = {  # recording variable -> (NWB name, unit, description)
     "foot_contact": ("foot_contact", "n.a.", "1 while the end effector touches the ground (columns: end_effectors)"),
     "gait_phase": ("gait_phase", "cycles", "stride phase of the reference foot, 0 at touchdown; NaN outside strides"),
     "gap_distance": ("gap_distance", "m", "distance along x to the near edge of the next gap; 0 over a gap"),
+    "gap_time": ("gap_time", "s", "time until the root body is over the next gap; 0 over a gap, NaN if never"),
 }
 
 

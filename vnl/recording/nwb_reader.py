@@ -64,6 +64,7 @@ EXPORTED = {  # vnl's export: NWB series -> (recording variable, its columns' di
     "foot_contact": ("foot_contact", "end_effector", "end_effectors"),
     "gait_phase": ("gait_phase", None, None),
     "gap_distance": ("gap_distance", None, None),
+    "gap_time": ("gap_time", None, None),
 }
 
 
