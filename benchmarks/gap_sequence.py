@@ -32,6 +32,7 @@ import argparse
 import itertools
 import json
 import math
+import re
 from pathlib import Path
 from typing import Any
 
@@ -92,9 +93,10 @@ def networks(run: Path) -> dict[str, int]:
     out = {"untrained": 0}
     config = yaml.safe_load((run / "config.yaml").read_text())
     stages = config.get("curriculum") or [{"name": "run"}]
+    names = [re.sub(r"[^A-Za-z0-9_.-]+", "_", str(stage.get("name") or i)) for i, stage in enumerate(stages)]
+    names = [n if names.count(n) == 1 else f"{i}_{n}" for i, n in enumerate(names)]  # one file per stage
     for r in records(run):  # each stage's last evaluation (a later record of the stage replaces it)
-        index = int(r.get("curriculum/stage", 0))
-        out[f"after_{stages[index].get('name') or index}"] = int(r["step"])
+        out[f"after_{names[int(r.get('curriculum/stage', 0))]}"] = int(r["step"])
     missing = [n for n, s in out.items() if s not in kept]
     if missing:
         raise SystemExit(
@@ -121,9 +123,13 @@ def compare(run: Path, out: Path, steps: dict[str, int], shared: Path, args: arg
     sources = [f"{run}@{s}" for s in steps.values()]
     for measure in MEASURES:
         png = out / f"compare_{measure}.png"
-        if not png.with_suffix(".json").is_file():
+        if png.with_suffix(".json").is_file():
+            continue
+        try:
             vnl("compare", *sources, "--recording", str(shared), "--measure", measure,
                 "--max-samples", str(args.max_samples), "--out", str(png), cache=args.compile_cache)  # fmt: skip
+        except SystemExit as e:  # one measure's failure (e.g. DSA on too short episodes) keeps the others
+            print(f"[gap-sequence] {measure}: {e}", flush=True)
 
 
 def on_shared(loaded: Any, ds: Any) -> Any:
@@ -135,10 +141,16 @@ def on_shared(loaded: Any, ds: Any) -> Any:
 
     obs, _ = observations(ds)
     activity = episode_activity(loaded, obs)
+    missing = [n for n in model.layers(ds) if n not in activity]
+    if missing:
+        raise SystemExit(f"{loaded.run_dir}@{loaded.step} has no layer {', '.join(missing)} of the shared recording")
     out = ds.drop_vars(model.layers(ds))
-    for name, values in activity.items():
-        if name in ds.data_vars and name.startswith(model.LAYER_PREFIXES):
-            out[name] = (ds[name].dims, np.asarray(values).reshape(ds[name].shape))
+    for name in model.layers(ds):
+        values = np.asarray(activity[name])
+        values = values[..., None] if values.ndim == 2 else values  # a value head's (E, T)
+        if values.shape != ds[name].shape:
+            raise SystemExit(f"{name}: {values.shape} on the shared episodes, {ds[name].shape} recorded")
+        out[name] = (ds[name].dims, values)
     return out
 
 
@@ -202,27 +214,29 @@ def decoding_figure(rows: list[dict], out: Path) -> Path:
     return out
 
 
+def behaviour_row(name: str, step: int, ds: Any) -> str:
+    """A network's own recording `ds` on the test corridor as a table row: gaps crossed (mean ± std
+    over episodes), metres its root body moved along x, and steps per episode."""
+    active = ds["active"].values > 0
+    crossed = ds["event_gap_crossed"].values.sum(1) if "event_gap_crossed" in ds else np.full(len(active), np.nan)
+    walker = ds["walker_body"].values > 0 if "walker_body" in ds else np.ones(ds.sizes["body"], bool)
+    root = int(np.argmax(walker[1:])) + 1  # a subtree's root is its first body (0 is the world)
+    x = ds["body_pos"].values[:, :, root, 0]
+    last = np.maximum(active.sum(1) - 1, 0)
+    gone = x[np.arange(len(x)), last] - x[:, 0]
+    return (
+        f"| {name} | {step:,} | {crossed.mean():.2f} ± {crossed.std():.2f} | {gone.mean():.2f} | "
+        f"{active.sum(1).mean():.0f} |"
+    )
+
+
 def behaviour_rows(out: Path, steps: dict[str, int]) -> list[str]:
-    """Each network's own recording on the test corridor: gaps crossed, distance and steps per episode."""
+    """Each network's own recording on the test corridor (OUT/<name>.nc), a row each."""
     from vnl import recording
 
-    lines = [
-        "| network | step | gaps crossed / episode | metres along x | steps / episode |",
-        "|---|---:|---:|---:|---:|",
-    ]
-    for name, step in steps.items():
-        ds = recording.read(out / f"{name}.nc")
-        active = ds["active"].values > 0
-        crossed = ds["event_gap_crossed"].values.sum(1)
-        root = int(np.argmax(ds["walker_body"].values > 0))  # a subtree's root is its first body
-        x = ds["body_pos"].values[:, :, root, 0]
-        last = np.maximum(active.sum(1) - 1, 0)
-        gone = x[np.arange(len(x)), last] - x[:, 0]
-        lines.append(
-            f"| {name} | {step:,} | {crossed.mean():.2f} ± {crossed.std():.2f} | {gone.mean():.2f} | "
-            f"{active.sum(1).mean():.0f} |"
-        )
-    return lines
+    lines = ["| network | step | gaps crossed / episode | metres along x | steps / episode |"]
+    lines.append("|---|---:|---:|---:|---:|")
+    return lines + [behaviour_row(name, step, recording.read(out / f"{name}.nc")) for name, step in steps.items()]
 
 
 def decoding_rows(rows: list[dict]) -> list[str]:
@@ -246,7 +260,11 @@ def similarity_rows(out: Path, names: list[str]) -> list[str]:
     """Consecutive networks' same-layer similarity (policy layers) under each measure."""
     lines = []
     for measure in MEASURES:
-        result = json.loads((out / f"compare_{measure}.json").read_text())
+        path = out / f"compare_{measure}.json"
+        if not path.is_file():
+            lines += ["", f"**{measure}**: not computed (its `vnl compare` failed: see the script's output)"]
+            continue
+        result = json.loads(path.read_text())
         pairs = {(p["a"], p["b"]): p for p in result["pairs"]}
         layers = [la for la in result["pairs"][0]["layers_a"] if la.startswith("policy_")]
         lines += [
@@ -277,7 +295,8 @@ def summary(args: argparse.Namespace, out: Path, steps: dict[str, int], env_set:
         *behaviour_rows(out, steps),
         "",
         f"Decoding on the last network's {args.episodes} episodes (every network run on the same observations), "
-        f"ridge, {args.folds} folds by episode; controls: mean of {args.repeats} repeats:",
+        f"ridge, {args.folds} folds by episode; controls: mean of {args.repeats} repeats. `gap_time` is defined "
+        "only up to an episode's last gap (NaN after: no gap is reached), so it is scored on those steps:",
         "",
         *decoding_rows(rows),
         *similarity_rows(out, list(steps)),
@@ -306,7 +325,8 @@ def main() -> None:
     out.mkdir(parents=True, exist_ok=True)
     train_args = [args.env, "--preset", args.preset, "--seed", str(args.seed), "--no-video"]
     train_args += ["--config", args.config] if args.config else []
-    train_args += ["--set", "log.keep_checkpoints=0"]  # every stage's last checkpoint is a network to study
+    # Every stage's last checkpoint is a network to study: keep them all, one per evaluation.
+    train_args += ["--set", "log.keep_checkpoints=0", "--set", "log.checkpoint_every=1"]
     train_args += [a for s in args.set for a in ("--set", s)]
     if (run / "config.yaml").is_file():
         from vnl.policy import read_config
@@ -319,10 +339,10 @@ def main() -> None:
     env_set = test_task(run)
     record(run, out, steps, env_set, args)
     shared = out / f"{list(steps)[-1]}.nc"
-    compare(run, out, steps, shared, args)
     rows = decode_all(run, steps, shared, args)
     (out / "decoding.json").write_text(json.dumps(rows, indent=1) + "\n")
     decoding_figure(rows, out / "decoding.png")
+    compare(run, out, steps, shared, args)
     text = summary(args, out, steps, env_set, rows)
     (out / "summary.md").write_text(text)
     print(text)

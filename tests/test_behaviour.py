@@ -83,8 +83,29 @@ def test_behaviour_features_agree_with_the_task(rat_recording):
     # The gap distance is measured from the episode's own corridor.
     assert np.nanmin(ds["gap_distance"].values) >= 0 and np.isfinite(ds["gap_distance"].values[active]).any()
     # The time to the next gap comes from the gap distance at the task's control step (this
-    # untrained rat never reaches a gap: NaN throughout; test_gap_time_counts_down_to_the_next_gap).
+    # untrained rat never reaches a gap: NaN throughout; test_gap_time_of_a_body_that_reaches_a_gap).
     expected = behaviour.gap_time(ds["gap_distance"].values, active, ds.attrs["control_dt"])
     np.testing.assert_array_equal(ds["gap_time"].values, expected)
     assert ds.attrs["walker"] == "rodent" and ds["walker_body"].values.sum() > 30
     assert ds["joint_angle"].shape[-1] == len(ds["joint"]) > 30
+
+
+@pytest.mark.slow
+@pytest.mark.xdist_group("neuro_record")
+def test_gap_time_of_a_body_that_reaches_a_gap(rat_recording):
+    """`variables` on the recording's states with the root body moved along x across a gap (from
+    0.5 to 1.0 m): the time to the gap counts down in the env's control steps to 0 at 0.5 m."""
+    run, ds, _, _ = rat_recording
+    e_, t_ = ds["active"].shape
+    root = int(run.env.unwrapped.root_body_id)
+    body_pos = ds["body_pos"].values.copy()
+    body_pos[:, :, root, 0] = np.linspace(0.0, 0.8, t_)
+    raw = {k: ds[k].values for k in ("qpos", "qvel", "body_quat", "active", "done")}
+    raw.update(body_pos=body_pos, metrics={}, active=np.ones((e_, t_), np.int8))
+    raw.update(layout_start=np.tile([0.0, 1.0], (e_, 1)), layout_length=np.tile([0.5, 5.0], (e_, 1)))
+    out, _, _ = behaviour.variables(run.env, raw)
+    reached = int(np.argmax(np.linspace(0.0, 0.8, t_) >= 0.5))
+    time = out["gap_time"][1]
+    np.testing.assert_allclose(time[:, 0], reached * run.env.dt)
+    np.testing.assert_allclose(time[:, reached:], 0.0)  # over the gap to the end
+    np.testing.assert_allclose(np.diff(time[:, : reached + 1], axis=1), -run.env.dt)

@@ -102,3 +102,47 @@ def _scaled(params):
     import jax
 
     return jax.tree.map(lambda x: x * 1.5, params)
+
+
+def test_a_behaviour_row_counts_gaps_and_the_roots_distance():
+    import xarray as xr
+
+    active = np.array([[1, 1, 1, 0], [1, 1, 1, 1]], np.int8)
+    pos = np.zeros((2, 4, 3, 3))  # bodies: world, the walker's root, a leg
+    pos[:, :, 1, 0] = [[0.0, 0.5, 1.0, 9.0], [0.0, 1.0, 2.0, 3.0]]  # step 3 of episode 0 is after its end
+    pos[:, :, 2, 0] = 100.0
+    ds = xr.Dataset(
+        {
+            "active": (("episode", "time"), active),
+            "event_gap_crossed": (("episode", "time"), np.array([[0, 1, 0, 0], [0, 1, 1, 0]])),
+            "walker_body": (("body",), np.array([0, 1, 1], np.int8)),
+            "body_pos": (("episode", "time", "body", "xyz"), pos),
+        }
+    )
+    assert gap_sequence.behaviour_row("a", 1000, ds) == "| a | 1,000 | 1.50 ± 0.50 | 2.00 | 4 |"
+
+
+def test_similarity_rows_read_each_measures_consecutive_pairs(tmp_path):
+    layers = ["policy_hidden_0", "policy_output", "value_output"]
+    pairs = [
+        {"a": a, "b": b, "layers_a": layers, "layers_b": layers, "similarity": np.full((3, 3), v).tolist()}
+        for a, b, v in [("n0", "n1", 0.5), ("n0", "n2", 0.1), ("n1", "n2", 0.9)]
+    ]
+    pairs[2]["similarity"][1][1] = None  # a constant layer: no similarity
+    result = {"samples": 1200, "observations": "x.nc", "networks": [{"name": n} for n in ("n0", "n1", "n2")]}
+    (tmp_path / "compare_cka.json").write_text(json.dumps({**result, "pairs": pairs}))
+    lines = gap_sequence.similarity_rows(tmp_path, ["untrained", "after_a", "after_b"])
+    assert "| untrained → after_a | 0.500 | 0.500 |" in lines
+    assert "| after_a → after_b | 0.900 | – |" in lines
+    assert any(line.startswith("**rdm**: not computed") for line in lines)
+    assert any(line.startswith("**dsa**: not computed") for line in lines)
+
+
+def test_stages_of_one_name_are_numbered_and_odd_characters_left_out_of_file_names(tmp_path):
+    stages = "curriculum=[{name: a b, steps: 1000}, {name: a b, steps: 1000}, {name: c/d, steps: 1000}]"
+    run = _run_dir(tmp_path, assignments=(stages,))
+    lines = [json.dumps({"step": s, "curriculum/stage": k}) for s, k in [(0, 0), (1000, 0), (2000, 1), (3000, 2)]]
+    (run / "metrics.jsonl").write_text("\n".join(lines) + "\n")
+    for step in (0, 1000, 2000, 3000):
+        (run / "checkpoints" / f"{step:012d}").mkdir(parents=True)
+    assert gap_sequence.networks(run) == {"untrained": 0, "after_0_a_b": 1000, "after_1_a_b": 2000, "after_c_d": 3000}
