@@ -203,6 +203,11 @@ def decoding_figure(rows: list[dict], out: Path) -> Path:
             ax.bar(x, [np.nan if got[n]["r2"] is None else got[n]["r2"] for n in names], width, label=layer)
             ticks = [got[n].get("control_r2_mean", np.nan) for n in names]
             ax.scatter(x, ticks, marker="_", color="k", s=80, zorder=3)
+        low = -0.5  # an R² far below 0 (a fold's blow-up) would hide the rest: clipped, its value written
+        for xi, r2 in zip(ax.patches, [p.get_height() for p in ax.patches], strict=True):
+            if np.isfinite(r2) and r2 < low:
+                ax.annotate(f"{r2:.3g}", (xi.get_x() + xi.get_width() / 2, low), fontsize=7, ha="center", va="bottom")
+        ax.set_ylim(low, 1.0)
         ax.set_xticks(np.arange(len(names)), names, rotation=20)
         ax.axhline(0, color="0.6", lw=0.8)
         ax.set_ylabel("held-out R²")
