@@ -29,6 +29,7 @@ recording or comparison already written is kept, so the script can be run again 
 from __future__ import annotations
 
 import argparse
+import functools
 import itertools
 import json
 import math
@@ -74,10 +75,7 @@ def test_task(run: Path) -> list[str]:
     default = registry.default_config(config.env)
     out = []
     for key in keys:
-        value = last[key] if key in last else default
-        if key not in last:
-            for part in key.split("."):
-                value = getattr(value, part)
+        value = last[key] if key in last else functools.reduce(getattr, key.split("."), default)
         value = list(value) if isinstance(value, tuple) else value
         out.append(
             f"env_config.{key}={yaml.safe_dump(value, default_flow_style=True).strip().removesuffix('...').strip()}"
@@ -88,12 +86,12 @@ def test_task(run: Path) -> list[str]:
 def networks(run: Path) -> dict[str, int]:
     """name -> checkpoint step: `untrained` (0), then `after_<stage>` at each stage's last evaluation."""
     from vnl.io import checkpoint
+    from vnl.policy import read_config
 
     kept = set(checkpoint.steps(run))
     out = {"untrained": 0}
-    config = yaml.safe_load((run / "config.yaml").read_text())
-    stages = config.get("curriculum") or [{"name": "run"}]
-    names = [re.sub(r"[^A-Za-z0-9_.-]+", "_", str(stage.get("name") or i)) for i, stage in enumerate(stages)]
+    stages = [stage.name for stage in read_config(run).curriculum] or ["run"]
+    names = [re.sub(r"[^A-Za-z0-9_.-]+", "_", str(name or i)) for i, name in enumerate(stages)]
     names = [n if names.count(n) == 1 else f"{i}_{n}" for i, n in enumerate(names)]  # one file per stage
     for r in records(run):  # each stage's last evaluation (a later record of the stage replaces it)
         out[f"after_{names[int(r.get('curriculum/stage', 0))]}"] = int(r["step"])
@@ -204,9 +202,10 @@ def decoding_figure(rows: list[dict], out: Path) -> Path:
             ticks = [got[n].get("control_r2_mean", np.nan) for n in names]
             ax.scatter(x, ticks, marker="_", color="k", s=80, zorder=3)
         low = -0.5  # an R² far below 0 (a fold's blow-up) would hide the rest: clipped, its value written
-        for xi, r2 in zip(ax.patches, [p.get_height() for p in ax.patches], strict=True):
-            if np.isfinite(r2) and r2 < low:
-                ax.annotate(f"{r2:.3g}", (xi.get_x() + xi.get_width() / 2, low), fontsize=7, ha="center", va="bottom")
+        for bar in ax.patches:
+            if np.isfinite(bar.get_height()) and bar.get_height() < low:
+                where = (bar.get_x() + bar.get_width() / 2, low)
+                ax.annotate(f"{bar.get_height():.3g}", where, fontsize=7, ha="center", va="bottom")
         ax.set_ylim(low, 1.0)
         ax.set_xticks(np.arange(len(names)), names, rotation=20)
         ax.axhline(0, color="0.6", lw=0.8)
