@@ -64,6 +64,44 @@ class PointMass(Env):
         return [("offset", 1), ("velocity", 1)] + ([("target", 1)] if self.config.observe_target else [])
 
 
+PLANE_XML = """
+<mujoco>
+  <option timestep="0.02"/>
+  <worldbody>
+    <geom name="wall" type="box" size="0.05 1 0.1" pos="2 0 0"/>
+    <body name="mass">
+      <joint name="x" type="slide" axis="1 0 0" damping="1"/>
+      <joint name="y" type="slide" axis="0 1 0" damping="1" stiffness="2"/>
+      <geom type="sphere" size="0.05" mass="1"/>
+    </body>
+  </worldbody>
+  <actuator><motor joint="x" gear="5" ctrlrange="-1 1" ctrllimited="true"/></actuator>
+</mujoco>
+"""
+
+
+class PlaneMass(PointMass):
+    """test_point's task on a plane: the same actuator, another world (a wall, an unactuated y
+    spring, nq 2), and another observation: (x − target, (vx, vy), y)."""
+
+    def __init__(self, config: PointConfig) -> None:
+        Env.__init__(self, config, mujoco.MjModel.from_xml_string(PLANE_XML), n_substeps=2, impl=config.impl)
+
+    def reset(self, rng: jax.Array) -> State:
+        q0 = jax.random.uniform(rng, (2,), minval=-0.2, maxval=0.2)
+        data = self.forward(self.make_data(qpos=q0))
+        zero = jp.zeros(())
+        return State(data, self._obs(data), zero, zero, {"reward/distance": zero, "physics_nan": zero}, {})
+
+    def _obs(self, data) -> jax.Array:
+        return jp.stack([data.qpos[0] - self.config.target, data.qvel[0], data.qvel[1], data.qpos[1]]).astype(
+            jp.float32
+        )
+
+    def observation_layout(self) -> list[tuple[str, int]]:
+        return [("offset", 1), ("velocity", 2), ("y", 1)]
+
+
 def register() -> None:
     registry.register("test_point", PointMass, PointConfig(), "test-only point mass")
     registry.register(
