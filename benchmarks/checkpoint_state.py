@@ -331,7 +331,8 @@ def main() -> None:
         results = sizes()
     kinds = (("reads", args.reads), ("joint", args.joint), ("recompute", args.recompute))
     for kind, envs in (*kinds, ("compressed", args.compressed)):
-        for name in registry.names() if envs == [] else envs or []:
+        every = [n for n in registry.names() if not registry.is_suite(n)]  # a suite: its members' rows
+        for name in every if envs == [] else envs or []:
             if kind == "reads":
                 results.append(reads(name, args.impl, args.vision, overrides))
             elif kind == "joint":

@@ -23,7 +23,9 @@ from vnl.tasks.run import Run
 # few envs; the last env of the batch gets zero actions.
 # Brax's ant and humanoid (`brax_*_run`, for comparing physics backends) run the same Run task
 # code as ant_run/humanoid_run; test_robustness and benchmarks/backend_throughput.py cover them.
-NAMES = [n for n in vnl.names() if n not in registry.ALIASES and not n.startswith("brax_")]
+# Suites (ant_suite, rodent_suite) are their members' worlds, each rolled out here under its own
+# name; test_suite.py covers the suites.
+NAMES = [n for n in vnl.names() if n not in registry.ALIASES and not n.startswith("brax_") and not registry.is_suite(n)]
 RUN_NAMES = [n for n in NAMES if registry.entry(n).factory is Run]
 STEPS = 1000
 # The rat on MJX: 200 steps (4 s). Its 1000-step rollouts took 290-340 s each in a full suite on a

@@ -19,7 +19,10 @@ ENVS = [n for n in vnl.names() if n not in registry.ALIASES]
 
 
 def _rules(env_config: dict) -> dict:
-    return {k: v for k, v in env_config.items() if k not in registry.COMPUTE_FIELDS}
+    """The task's rules: the config but its compute fields (a suite's members' too: the suite's own
+    are copied into them)."""
+    kept = {k: v for k, v in env_config.items() if k not in registry.COMPUTE_FIELDS}
+    return {k: _rules(v) if isinstance(v, dict) and "impl" in v else v for k, v in kept.items()}
 
 
 def _camera(vision: VisionConfig) -> dict:

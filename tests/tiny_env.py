@@ -6,7 +6,7 @@ import jax
 import jax.numpy as jp
 import mujoco
 
-from vnl.envs import registry
+from vnl.envs import registry, suite
 from vnl.tasks.contract import Env, State
 
 XML = """
@@ -107,8 +107,20 @@ def register() -> None:
     registry.register(
         "test_point_unstable", PointMass, PointConfig(blow_up_above=0.8), "test-only point mass that blows up"
     )
+    registry.register("test_suite", *suite_members(), "test-only suite of test_point and test_plane")
+
+
+def suite_members(**point: object) -> tuple:
+    """(factory, default config) of the suite of test_point and test_plane (episodes of 40 and 30)."""
+    return suite.define(
+        {
+            "test_point": (PointMass, PointConfig(impl="c", **point)),
+            "test_plane": (PlaneMass, PointConfig(impl="c", episode_length=30, **point)),
+        }
+    )
 
 
 def unregister() -> None:
     registry.unregister("test_point")
     registry.unregister("test_point_unstable")
+    registry.unregister("test_suite")

@@ -234,12 +234,12 @@ def policy_video(
     return str(path), n
 
 
-def final_video(run: LoadedRun) -> tuple[str, int]:
-    """`final_policy.mp4` in the run directory: one episode of the run's policy with the run's
-    `log.video_*` settings (camera, seconds, size); returns (path, frames)."""
+def final_video(run: LoadedRun, name: str = "final_policy.mp4") -> tuple[str, int]:
+    """`name` in the run directory: one episode of the run's policy with the run's `log.video_*`
+    settings (camera, seconds, size); returns (path, frames)."""
     log = run.config.log
     steps = int(round(log.video_seconds / run.env.dt))
-    out = str(Path(run.run_dir) / "final_policy.mp4")
+    out = str(Path(run.run_dir) / name)
     return policy_video(run.env, run.policy, out, log.video_camera, steps, log.video_width, log.video_height)
 
 

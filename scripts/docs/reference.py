@@ -267,10 +267,18 @@ def env_markdown(name: str) -> str:
     ]
     camera = registry.vision_defaults(name)
     settings = ", ".join(f"`{k}: {v}`" for k, v in camera.items()) or "the defaults (the egocentric camera, 64x64 RGB)"
-    out += [f"With `--vision` (or `vnl.make({name!r}, vision=True)`) the policy also sees a camera: {settings}.", ""]
-    state = jax.eval_shape(env.reset, jax.ShapeDtypeStruct((2,), jp.uint32))
-    rewards = sorted(k.removeprefix("reward/") for k in state.metrics if k.startswith("reward/"))
-    measures = sorted(k.removeprefix("measure/") for k in state.metrics if k.startswith("measure/"))
+    if registry.is_suite(name):
+        out += ["With `--vision`: not yet for a suite (its observation is its members' flat union).", ""]
+    else:
+        out += [
+            f"With `--vision` (or `vnl.make({name!r}, vision=True)`) the policy also sees a camera: {settings}.",
+            "",
+        ]
+    tasks = list(getattr(env, "views", {"": env}).values())  # a suite: each member's
+    metrics = {k for t in tasks for k in jax.eval_shape(t.reset, jax.ShapeDtypeStruct((2,), jp.uint32)).metrics}
+    rewards = sorted(k.removeprefix("reward/") for k in metrics if k.startswith("reward/"))
+    measures = sorted(k.removeprefix("measure/") for k in metrics if k.startswith("measure/"))
+    cameras = sorted({c for t in tasks for c in video.camera_names(t.mj_model)})
     out += [
         "## Actions, time, cameras",
         "",
@@ -280,7 +288,8 @@ def env_markdown(name: str) -> str:
         f"- reward terms (`metrics['reward/<term>']`, summing to the reward): {', '.join(f'`{r}`' for r in rewards)}",
         f"- task measures (`metrics['measure/<name>']`, summed over an episode; `eval/episode_measure/<name>` "
         f"in metrics.jsonl): {', '.join(f'`{m}`' for m in measures) or 'none'}",
-        f"- cameras (`vnl render --camera`): {', '.join(f'`{c}`' for c in video.camera_names(env.mj_model))}",
+        f"- cameras (`vnl render --camera`): {', '.join(f'`{c}`' for c in cameras)}",
+        *_suite_lines(env),
         "",
         "## The task",
         "",
@@ -296,7 +305,9 @@ def env_markdown(name: str) -> str:
         "|---|---|---|---|",
     ]
     default = registry.default_config(name)
-    for f in all_field_docs(type(default)):
+    if registry.is_suite(name):
+        out += _suite_config_rows(default)
+    for f in [] if registry.is_suite(name) else all_field_docs(type(default)):
         out.append(f"| `{f.name}` | {_code(f.type)} | {_code(_value(getattr(default, f.name)))} | {_cell(f.doc)} |")
     out += ["", "## Presets", ""]
     path = presets.path(name)
@@ -314,6 +325,44 @@ def env_markdown(name: str) -> str:
             out += [f"`{extends}.yaml`:", "", "```yaml", shared, "```", ""]
     out += [f"`vnl train {name} --preset cpu --print-config` prints a preset's whole resolved config.", ""]
     return "\n".join(out)
+
+
+def _suite_lines(env: Any) -> list[str]:
+    """A suite's members, their shares of the batch and episodes (nothing for another env)."""
+    views = getattr(env, "views", None)
+    if views is None:
+        return []
+    shares = dict(zip(env.tasks, env.shares, strict=True))
+    rows = [
+        f"    - [{name}]({name}.md): {shares.get(name, 0)} of {sum(env.shares)} of the batch, episodes of "
+        f"{view.config.episode_length} steps"
+        for name, view in views.items()
+    ]
+    return [
+        "- a suite (`vnl.envs.suite`): one policy on its members' tasks, each on its share of the batch "
+        "and evaluated on its own (`eval/<task>/...`; `eval/episode_reward` is their mean). `vnl eval` evaluates "
+        "each; `--set env_config.task=NAME` picks one for eval, record and render. Members:",
+        *rows,
+    ]
+
+
+def _suite_config_rows(default: Any) -> list[str]:
+    """The env_config table's rows of a suite: each member's config, then the suite's own keys."""
+    rows = [
+        f"| `{name}` | its config | [{name}]({name}.md)'s defaults | the member's keys: `env_config.{name}.KEY` |"
+        for name in default.members()
+    ]
+    own = {
+        "tasks": "the members trained on (all are evaluated)",
+        "shares": "their relative numbers of envs in the batch (null: equal)",
+        "task": "one member alone, observing the suite's layout (eval, record, render; not training)",
+        "impl": "the physics of every member",
+        "threads": "MuJoCo C's threads, every member's",
+    }
+    for key, doc in own.items():
+        if hasattr(default, key):
+            rows.append(f"| `{key}` | | {_code(_value(getattr(default, key)))} | {doc} |")
+    return rows
 
 
 def envs_table(names: list[str], link: str = "{name}.md") -> list[str]:
@@ -365,9 +414,13 @@ def env_picture(name: str, width: int = 480, height: int = 360) -> bytes:
     from vnl.io import video
 
     env = vnl.make(name, impl="c", threads=1)
-    state = jax.jit(env.reset)(jax.random.PRNGKey(0))
-    qpos, mocap = np.asarray(state.data.qpos)[None], np.asarray(state.data.mocap_pos)[None]
-    frame = video.render_frames(env.mj_model, qpos, None, width, height, mocap_pos=mocap)[0]
+    frames = []
+    for task in getattr(env, "views", {"": env}).values():  # a suite: its members side by side
+        state = jax.jit(task.reset)(jax.random.PRNGKey(0))
+        qpos, mocap = np.asarray(state.data.qpos)[None], np.asarray(state.data.mocap_pos)[None]
+        w = width // len(getattr(env, "views", [env]))
+        frames.append(video.render_frames(task.mj_model, qpos, None, w, height, mocap_pos=mocap)[0])
+    frame = np.concatenate(frames, axis=1)
     buf = _io.BytesIO()
     Image.fromarray(frame).save(buf, format="PNG", optimize=True)
     return buf.getvalue()

@@ -26,7 +26,9 @@ def run(args: argparse.Namespace) -> int:
         if args.verbose:
             layout = ", ".join(f"{n} ({w})" for n, w in env.observation_layout())
             print(f"{'':<{width}}  observation: {layout}")
-            cameras = ", ".join(video.camera_names(env.mj_model))
-            steps = env.config.episode_length
-            print(f"{'':<{width}}  control dt {env.dt:.3f} s, episode {steps} steps; cameras: {cameras}")
+            for task, view in getattr(env, "views", {"": env}).items():  # a suite: each member's
+                cameras = ", ".join(video.camera_names(view.mj_model))
+                steps = view.config.episode_length
+                what = f"{task}: " if task else ""
+                print(f"{'':<{width}}  {what}control dt {env.dt:.3f} s, episode {steps} steps; cameras: {cameras}")
     return 0

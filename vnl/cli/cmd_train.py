@@ -151,8 +151,7 @@ def _finisher(gl: str | None) -> Any:
     """`finish(run_dir, env)` for the trainer: the final policy's video, when `log.video` is on."""
 
     def finish(run_dir: Path, env: Any) -> Path | None:
-        from vnl.policy import load_run
-        from vnl.rollout import final_video
+        from vnl.envs.suite import SuiteEnv
         from vnl.train.config import read_config
 
         if not read_config(run_dir).log.video:
@@ -160,21 +159,33 @@ def _finisher(gl: str | None) -> Any:
         if not gl:
             process.say(process.no_gl_line())
             return None
-        try:
-            path, n = final_video(load_run(run_dir, env=env))
-        except VnlError as e:
-            process.say(f"[vnl] video skipped: {e}")
-            return None
-        except Exception as e:  # noqa: BLE001 - a full disk skips the video; anything else is a bug
-            line = errors.describe(e)
-            if line is None:
-                raise
-            process.say(f"[vnl] video skipped: {line}")
-            return None
-        process.say(f"[vnl] video of the final policy ({n} frames): {path}")
-        return Path(path)
+        if not isinstance(env, SuiteEnv):
+            return _final_video(run_dir, env, "final_policy.mp4")
+        videos = [_final_video(run_dir, env.views[task], f"final_policy_{task}.mp4") for task in env.tasks]
+        return next((v for v in videos if v is not None), None)
 
     return finish
+
+
+def _final_video(run_dir: Path, env: Any, name: str) -> Path | None:
+    """`name`, a video of the final policy on `env` (one task of a suite: its view), or None
+    when it cannot be made (said why)."""
+    from vnl.policy import load_run
+    from vnl.rollout import final_video
+
+    try:
+        path, n = final_video(load_run(run_dir, env=env), name)
+    except VnlError as e:
+        process.say(f"[vnl] video skipped: {e}")
+        return None
+    except Exception as e:  # noqa: BLE001 - a full disk skips the video; anything else is a bug
+        line = errors.describe(e)
+        if line is None:
+            raise
+        process.say(f"[vnl] video skipped: {line}")
+        return None
+    process.say(f"[vnl] video of the final policy ({n} frames): {path}")
+    return Path(path)
 
 
 def run(args: argparse.Namespace) -> int:

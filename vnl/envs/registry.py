@@ -12,6 +12,7 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from vnl import typed_config as config_lib
+from vnl.envs import suite
 from vnl.errors import VnlError
 from vnl.tasks import cue_memory, escape_bowl, find_target, imitate, maze_forage, run, run_gaps, two_touch
 from vnl.tasks.contract import Env
@@ -106,6 +107,28 @@ _REGISTRY: dict[str, Entry] = {
     ),
 }
 
+SUITES = {
+    # The ant's two tasks it learns alone (docs/results), split 3:1 as their presets' budgets are
+    # (12M and 4M steps): one policy against two specialists: docs/how-to/multitask.md
+    "ant_suite": (
+        ("ant_run_gaps", "ant_escape_bowl"),
+        (3, 1),
+        "The ant's gaps run and bowl escape, one policy for both.",
+    ),
+    "rodent_suite": (
+        suite.RODENT_SUITE,
+        None,
+        "Merel et al. 2020's four rat tasks (gaps, maze forage, bowl, two-touch) for one policy.",
+    ),
+}
+"""Suites (`vnl.envs.suite`): (member envs, their shares of the batch, description)."""
+
+for _name, (_members, _shares, _what) in SUITES.items():
+    _factory, _default = suite.define(
+        {m: (_REGISTRY[m].factory, _REGISTRY[m].default_config) for m in _members}, _shares
+    )
+    _REGISTRY[_name] = Entry(_factory, _default, _what)
+
 ALIASES = {"run": "rodent_run", "run_gaps": "rodent_run_gaps", "escape_bowl": "rodent_escape_bowl"}
 """Generic task names whose defaults equal a walker-specific env's (tests build each once)."""
 
@@ -136,6 +159,11 @@ def register(
 def unregister(name: str) -> None:
     """Removes an environment added with `register`."""
     _REGISTRY.pop(name, None)
+
+
+def is_suite(name: str) -> bool:
+    """Whether env `name` is a suite of tasks (`vnl.envs.suite`)."""
+    return isinstance(entry(name).default_config, suite.SuiteConfig)
 
 
 def names() -> list[str]:

@@ -1,5 +1,5 @@
 """Suites: several tasks as one env, for one network trained on all of them (Merel et al. 2020's
-one brain on four tasks: issue 55, docs/how-to/multitask.md).
+one brain on four tasks; docs/how-to/multitask.md).
 
 A suite has K member envs, each built with its own world (`mj_model`) and its own task code,
 unchanged. What makes them one env for one network:
@@ -193,7 +193,10 @@ class SuiteConfig:
 
     @property
     def episode_length(self) -> int:
-        """The longest member's episode (control steps); each member still ends its own."""
+        """`task`'s episode (control steps) when one is picked, else the longest member's (each
+        member still ends its own)."""
+        if self.task is not None:
+            return getattr(self, self.task).episode_length
         return max(getattr(self, name).episode_length for name in self._members)
 
     def members(self) -> dict[str, Any]:
@@ -201,9 +204,12 @@ class SuiteConfig:
         return {name: getattr(self, name) for name in self._members}
 
 
-def define(members: Mapping[str, tuple[Callable[[Any], Env], Any]]) -> tuple[Callable[[Any], Any], Any]:
-    """A suite of `members` ({env name: (factory, default config)}, in order); returns its factory
-    (`factory(config) -> SuiteEnv`, or the `TaskView` of `config.task`) and its default config."""
+def define(
+    members: Mapping[str, tuple[Callable[[Any], Env], Any]], shares: tuple[int, ...] | None = None
+) -> tuple[Callable[[Any], Any], Any]:
+    """A suite of `members` ({env name: (factory, default config)}, in order), split `shares`
+    between them by default (None: equally); returns its factory (`factory(config) -> SuiteEnv`,
+    or the `TaskView` of `config.task`) and its default config."""
     if len(members) < 2:
         raise VnlError(f"a suite needs at least two members, got {list(members)}")
     first = next(iter(members.values()))[1]
@@ -212,7 +218,7 @@ def define(members: Mapping[str, tuple[Callable[[Any], Env], Any]]) -> tuple[Cal
     ]
     fields += [
         ("tasks", tuple[str, ...], dataclasses.field(default=tuple(members))),
-        ("shares", tuple[int, ...] | None, dataclasses.field(default=None)),
+        ("shares", tuple[int, ...] | None, dataclasses.field(default=shares)),
         ("task", str | None, dataclasses.field(default=None)),
     ]
     hints = typing.get_type_hints(type(first))  # the members' modules may defer annotations
@@ -296,6 +302,12 @@ class SuiteEnv:
     @property
     def unwrapped(self) -> SuiteEnv:
         return self
+
+    @property
+    def previous_state_reads(self) -> tuple[str, ...] | None:
+        """Every member's (a checkpoint keeps what any of them reads); None if one's is unknown."""
+        reads = [env.previous_state_reads for env in self.members.values()]
+        return None if any(r is None for r in reads) else tuple(sorted(set().union(*reads)))
 
     def episode_lengths(self, episode_length: int | None = None) -> dict[str, int]:
         """{task trained on: its episode length}: `episode_length` for all when given (a training

@@ -46,6 +46,7 @@ from vnl import physics
 from vnl.envs import randomize
 from vnl.envs.wrappers import wrap_for_training
 from vnl.errors import VnlError
+from vnl.ppo import suite_loop
 from vnl.ppo.config import RunSettings
 from vnl.ppo.networks import make_inference_fn, make_network
 from vnl.ppo.schedules import KL_RATE_RANGE, current_learning_rate, epoch_length, learning_rate
@@ -141,14 +142,20 @@ class PPOLoop:
             jax.config.update("jax_use_shardy_partitioner", False)
         self.local_envs = p.num_envs // self.process_count
         self.episode_length = config.episode_length()
+        self.suite = suite_loop.is_suite(env)
+        if self.suite:
+            suite_loop.check(env, config, self.local_envs // self.n_devices)
         train_models, eval_models = self._randomized_models(env)
-        self.env = wrap_for_training(
-            env,
-            episode_length=self.episode_length,
-            action_repeat=p.action_repeat,
-            randomization_fn=train_models,
-            axis_name=AXIS,
-        )
+        if self.suite:
+            self.env = suite_loop.training_env(env, config)
+        else:
+            self.env = wrap_for_training(
+                env,
+                episode_length=self.episode_length,
+                action_repeat=p.action_repeat,
+                randomization_fn=train_models,
+                axis_name=AXIS,
+            )
         self.task_env = env  # the unwrapped env being trained
         self.observation_size = env.observation_size
         self.action_size = env.action_size
@@ -170,10 +177,15 @@ class PPOLoop:
         self._epoch_exec: Any = None  # the epoch compiled ahead of time (`compile`)
         self._reset = jax.pmap(self.env.reset, axis_name=AXIS)
         self._identity = jax.pmap(lambda x: x, axis_name=AXIS)
-        eval_env = wrap_for_training(
-            env, episode_length=self.episode_length, action_repeat=p.action_repeat, randomization_fn=eval_models
-        )
-        self._evaluator = self._make_evaluator(eval_env)
+        if self.suite:  # one evaluator per task
+            self._evaluators = {
+                name: self._make_evaluator(*spec) for name, spec in suite_loop.evaluation_envs(env, config).items()
+            }
+        else:
+            eval_env = wrap_for_training(
+                env, episode_length=self.episode_length, action_repeat=p.action_repeat, randomization_fn=eval_models
+            )
+            self._evaluator = self._make_evaluator(eval_env, p.num_eval_envs, self.episode_length)
         self.training_walltime = 0.0
 
     # ---- what a recurrent loop (vnl.ppo.recurrent_ppo) replaces -----------------------------------
@@ -199,14 +211,14 @@ class PPOLoop:
             "clipping_epsilon": p.clipping_epsilon,
         }
 
-    def _make_evaluator(self, eval_env: Any) -> Any:
+    def _make_evaluator(self, eval_env: Any, num_eval_envs: int, episode_length: int) -> Any:
         """Brax's `Evaluator` of the policy on `num_eval_envs` episodes of `eval_env`."""
         p = self.config.ppo
         return acting.Evaluator(
             eval_env,
             functools.partial(self.make_policy, deterministic=p.deterministic_eval),
-            num_eval_envs=p.num_eval_envs,
-            episode_length=self.episode_length,
+            num_eval_envs=num_eval_envs,
+            episode_length=episode_length,
             action_repeat=p.action_repeat,
             key=jax.random.PRNGKey(0),  # replaced by LoopState.eval_key before every evaluation
         )
@@ -337,7 +349,9 @@ class PPOLoop:
         flat = self.to_arrays(template, gather=False, compact=False)
         if self.process_count > 1:  # the saved env arrays hold every process's envs
             flat = {
-                k: np.broadcast_to(v[:1], (self.config.ppo.num_envs,) + v.shape[1:]) if k.startswith(".env") else v
+                k: np.broadcast_to(v[:1], (v.shape[0] * self.process_count,) + v.shape[1:])
+                if k.startswith(".env")
+                else v
                 for k, v in flat.items()
             }
         left_out = physics.derived_paths(template.env, self.task_env.previous_state_reads)
@@ -363,17 +377,20 @@ class PPOLoop:
         paths, treedef = jax.tree_util.tree_flatten_with_path(host)
         leaves = [arrays[jax.tree_util.keystr(path)] for path, _ in paths]
         restored = jax.tree_util.tree_unflatten(treedef, leaves)
-        per_device = self.local_envs // self.n_devices
-        mine = slice(self.process_index * self.local_envs, (self.process_index + 1) * self.local_envs)
-        env = jax.tree.map(
-            lambda x: jp.asarray(x[mine].reshape((self.n_devices, per_device) + x.shape[1:])), restored.env
-        )
+        env = jax.tree.map(self._local_rows, restored.env)
         return LoopState(
             training=self._replicate(restored.training),
             env=self._place(env),
             key=jp.asarray(restored.key),
             eval_key=jp.asarray(restored.eval_key),
         )
+
+    def _local_rows(self, x: np.ndarray) -> jax.Array:
+        """This process's rows of a saved env array (all processes' rows of one leaf, a suite's
+        member holding its share), as (devices, rows per device, ...)."""
+        local = x.shape[0] // self.process_count
+        mine = x[self.process_index * local : (self.process_index + 1) * local]
+        return jp.asarray(mine.reshape((self.n_devices, local // self.n_devices) + x.shape[1:]))
 
     def training(self, state: LoopState) -> TrainingState:
         """Brax's `TrainingState` of `state` (one copy, on the host)."""
@@ -430,9 +447,24 @@ class PPOLoop:
         return state.replace(training=training, env=env, key=key), metrics
 
     def evaluate(self, state: LoopState, training_metrics: dict[str, float]) -> tuple[LoopState, dict[str, Any]]:
-        """Brax's evaluation (`num_eval_envs` episodes) of the current policy."""
-        metrics, eval_key = run_evaluation(self._evaluator, state.eval_key, self.params(state), training_metrics)
-        return state.replace(eval_key=eval_key), metrics
+        """Brax's evaluation (`num_eval_envs` episodes) of the current policy; a suite's tasks one
+        by one (each from the evaluation key folded with its index), with their aggregates."""
+        params = self.params(state)
+        if not self.suite:
+            metrics, eval_key = self._evaluate_one(self._evaluator, state.eval_key, params, training_metrics)
+            return state.replace(eval_key=eval_key), metrics
+        per_task = {
+            name: self._evaluate_one(evaluator, jax.random.fold_in(state.eval_key, k), params, {})[0]
+            for k, (name, evaluator) in enumerate(self._evaluators.items())
+        }
+        metrics = suite_loop.metrics(per_task, training_metrics, self.task_env.tasks)
+        return state.replace(eval_key=jax.random.split(state.eval_key)[0]), metrics
+
+    def _evaluate_one(
+        self, evaluator: Any, key: jax.Array, params: Any, training_metrics: dict[str, float]
+    ) -> tuple[dict[str, Any], jax.Array]:
+        """(metrics, the key after) of one evaluator's evaluation from `key`."""
+        return run_evaluation(evaluator, key, params, training_metrics)
 
     def _training_epoch(self, training: TrainingState, env_state: Any, key: jax.Array) -> tuple[Any, Any, Any]:
         (training, env_state, _), metrics = jax.lax.scan(

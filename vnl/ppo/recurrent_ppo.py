@@ -209,19 +209,20 @@ class RecurrentPPOLoop(PPOLoop):
     def _loss_fn(self) -> Any:
         return functools.partial(recurrent_ppo_loss, networks=self.network, **self._loss_settings())
 
-    def _make_evaluator(self, eval_env: Any) -> RecurrentEvaluator:
+    def _make_evaluator(self, eval_env: Any, num_eval_envs: int, episode_length: int) -> RecurrentEvaluator:
         p = self.config.ppo
-        steps = self.episode_length // p.action_repeat
-        return RecurrentEvaluator(eval_env, self.network, p.num_eval_envs, steps, p.deterministic_eval)
+        steps = episode_length // p.action_repeat
+        return RecurrentEvaluator(eval_env, self.network, num_eval_envs, steps, p.deterministic_eval)
 
     def reset_envs(self, key: jax.Array) -> Any:
         """New env states and zero core states: (devices, envs per device, ...) each."""
         envs = super().reset_envs(key)
         return envs, zero_carry(self.network, (self.n_devices, self.local_envs // self.n_devices))
 
-    def evaluate(self, state: Any, training_metrics: dict[str, float]) -> tuple[Any, dict[str, Any]]:
-        metrics, eval_key = self._evaluator.run_evaluation(self.params(state), training_metrics, state.eval_key)
-        return state.replace(eval_key=eval_key), metrics
+    def _evaluate_one(
+        self, evaluator: Any, key: jax.Array, params: Any, training_metrics: dict[str, float]
+    ) -> tuple[dict[str, Any], jax.Array]:
+        return evaluator.run_evaluation(params, training_metrics, key)
 
     def _collect(self, training: TrainingState, env_state: Any, key: jax.Array) -> tuple[Any, Any]:
         """Like `PPOLoop._collect`, the cores carried from step to step (`actor_step`)."""

@@ -16,6 +16,7 @@ import yaml
 from vnl import typed_config as config_lib
 from vnl.envs import registry
 from vnl.envs.randomize import RandomizeConfig
+from vnl.envs.suite import SuiteConfig
 from vnl.errors import VnlError
 from vnl.ppo.config import (  # noqa: F401 - PPO's settings, part of a run's config (and importable from here)
     INTENTION_NEEDS_FLAT,
@@ -187,10 +188,40 @@ class TrainConfig:
                 "would go on from the parent's count instead of starting at learning_rate; drop one of them"
             )
         self._validate_curriculum()
+        if isinstance(env_config, SuiteConfig):
+            self._validate_suite(env_config)
         if self.decoder.run is not None:
             self._validate_decoder()
         if self.network.architecture == "intention":
             self._validate_intention()
+
+    def _validate_suite(self, env_config: SuiteConfig) -> None:
+        """A suite trains one flat-observation network on all its tasks at once (`vnl.envs.suite`)."""
+        unsupported = {
+            "--vision (a suite's observation is its tasks' flat union)": self.vision.enabled,
+            "decoder.run": self.decoder.run is not None,
+            "randomize": self.randomize.enabled,
+            "network.architecture: intention": self.network.architecture == "intention",
+        }
+        refused = [name for name, on in unsupported.items() if on]
+        if refused:
+            raise VnlError(f"{self.env} is a suite of tasks, which cannot train with {refused[0]} yet; turn it off")
+        tasks, shares = len(env_config.tasks), sum(env_config.shares or (1,) * len(env_config.tasks))
+        if self.ppo.num_eval_envs % tasks or self.ppo.num_envs % shares:
+            raise VnlError(
+                f"{self.env}: ppo.num_eval_envs ({self.ppo.num_eval_envs}) must be a multiple of its {tasks} tasks "
+                f"and ppo.num_envs ({self.ppo.num_envs}) of the sum of their shares ({shares})"
+            )
+
+    def check_trainable(self) -> None:
+        """`VnlError` for what a valid config can evaluate but not train: one task of a suite
+        (`env_config.task`, which eval, record and render take)."""
+        task = getattr(self.resolved_env_config(), "task", None)
+        if isinstance(self.resolved_env_config(), SuiteConfig) and task is not None:
+            raise VnlError(
+                f"env_config.task={task} picks one task of {self.env} for eval, record and render; a suite "
+                f"trains on env_config.tasks (to train {task} alone, train that env)"
+            )
 
     def _validate_decoder(self) -> None:
         """A frozen decoder drives a flat-observation env through a brax or merel policy."""

@@ -16,6 +16,7 @@ import numpy as np
 
 from vnl import durable, physics
 from vnl import typed_config as config_lib
+from vnl.envs.suite import SuiteEnv
 from vnl.envs.wrappers import wrap_for_training
 from vnl.errors import VnlError
 from vnl.io import checkpoint, layout, runlock
@@ -136,7 +137,11 @@ def checkpoint_bytes(config: TrainConfig, env: Env, compact: bool = True) -> int
 def env_state_bytes(env: Env, compact: bool = True) -> int:
     """The bytes a checkpoint holds of one training env's state, as training wraps it (its physics
     state twice: current and first, for auto-reset), without the physics fields the next step
-    recomputes (`physics.derived_paths`; with them, `compact=False`, as before format 2)."""
+    recomputes (`physics.derived_paths`; with them, `compact=False`, as before format 2). A suite's:
+    the mean over its tasks, weighted by their shares of the batch."""
+    if isinstance(env, SuiteEnv):
+        views = [(env.views[name], share) for name, share in zip(env.tasks, env.shares, strict=True)]
+        return sum(share * env_state_bytes(view, compact) for view, share in views) // sum(env.shares)
     state = jax.eval_shape(wrap_for_training(env, episode_length=1).reset, jax.ShapeDtypeStruct((1, 2), np.uint32))
     dropped = set(physics.derived_paths(state, env.previous_state_reads)) if compact else set()
     leaves = jax.tree_util.tree_flatten_with_path(state)[0]

@@ -73,6 +73,7 @@ def _start(
     """A run from step 0: into a new directory (`saved` None), or into `run_dir` again, whose
     config.yaml holds `saved`, when it stopped before its first checkpoint."""
     loop.check_devices(config)
+    config.check_trainable()
     if config.decoder.run is not None and config.decoder.config_hash is None:
         config = frozen_decoder.recorded(config, config.decoder_run_config())
     stop = session.stop_request()
@@ -145,7 +146,10 @@ def _check_video_camera(config: TrainConfig, worlds: Worlds) -> None:
     if config.log.video:
         from vnl.io import video
 
-        video.resolve_camera(worlds.last().mj_model, config.log.video_camera)
+        env = worlds.last()
+        for task in getattr(env, "tasks", ()) or (None,):  # a suite: the camera of every task's video
+            model = env.views[task].mj_model if task is not None else env.mj_model
+            video.resolve_camera(model, config.log.video_camera)
 
 
 def resume(

@@ -1,0 +1,129 @@
+"""One network trained on a suite's tasks (vnl.envs.suite, vnl.ppo.suite_loop): each task evaluated
+on its own and averaged, a resume through a compact checkpoint bit-exact, the recurrent loop, the
+final videos and `vnl eval` per task, and the settings a suite refuses."""
+
+import json
+
+import numpy as np
+import pytest
+from test_compact_checkpoints import KEPT, assert_same_run, physics_fields, quiet
+
+from vnl.cli import main
+from vnl.errors import VnlError
+from vnl.io import checkpoint
+from vnl.io import metrics as metrics_io
+from vnl.io.video import read_mp4
+from vnl.train import config as train_config
+from vnl.train import trainer
+
+pytestmark = [pytest.mark.usefixtures("point_envs")]
+
+K = 1024  # tiny preset: 2 training steps of 512 env steps
+
+
+def config(**values):
+    base = {
+        "ppo": {"num_timesteps": 2 * K, "num_evals": 3, "episode_length": None},
+        # episodes of 12 and 9 steps end inside a training step, so every member auto-resets
+        "env_config": {"test_point": {"episode_length": 12}, "test_plane": {"episode_length": 9}, "shares": [1, 3]},
+        "log": {"video": False, "progress": False},
+    }
+    for key, value in values.items():
+        base[key] = {**base.get(key, {}), **value}
+    return train_config.build("test_suite", "tiny", file_values=base)
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    run = tmp_path_factory.mktemp("suite") / "reference"
+    trainer.train(config(), run, say=quiet)
+    return run
+
+
+@pytest.mark.slow
+@pytest.mark.xdist_group("suite")
+def test_each_task_is_evaluated_on_its_own_and_the_run_reports_their_mean(reference):
+    records = metrics_io.read(reference / "metrics.jsonl")
+    assert [r["step"] for r in records] == [0, K, 2 * K]
+    for r in records:
+        point, plane = r["eval/test_point/episode_reward"], r["eval/test_plane/episode_reward"]
+        assert r["eval/episode_reward"] == pytest.approx((point + plane) / 2)
+        # each evaluated on its own episode length: 12 and 9 steps
+        assert r["eval/test_point/avg_episode_length"] == 12 and r["eval/test_plane/avg_episode_length"] == 9
+        assert point != plane
+
+
+@pytest.mark.slow
+@pytest.mark.xdist_group("suite")
+def test_a_suite_resumes_bit_exact_through_a_compact_checkpoint(reference, tmp_path):
+    run = tmp_path / "run"
+    trainer.train(config(ppo={"num_timesteps": K, "num_evals": 2}), run, say=quiet)
+    _, arrays, _ = checkpoint.load_train_state(run)
+    assert physics_fields(arrays) == set()  # no physics state at the top: it lives per member
+    members = {
+        name: {k.split(".data.")[-1].removeprefix("_impl.").split(".")[0] for k in arrays if f"['{name}'].data." in k}
+        for name in ("test_point", "test_plane")
+    }
+    assert members == {"test_point": KEPT["c"], "test_plane": KEPT["c"]}
+    rows = {name: arrays[f".env.info['tasks']['{name}'].data.qpos"].shape for name in members}
+    assert rows == {"test_point": (4, 1), "test_plane": (12, 2)}  # 16 envs split 1:3, each its own nq
+    trainer.resume(run, flags={"ppo": {"num_timesteps": 2 * K}}, say=quiet)
+    assert_same_run(run, reference)
+
+
+@pytest.mark.slow
+@pytest.mark.xdist_group("suite")
+def test_vnl_eval_evaluates_every_task_or_the_one_named(reference, capsys):
+    out = reference / "eval_all.json"
+    assert main(["eval", str(reference), "--episodes", "2", "--out", str(out)]) == 0
+    summary = json.loads(out.read_text())
+    assert set(summary["tasks"]) == {"test_point", "test_plane"}
+    assert summary["tasks"]["test_plane"]["max_steps"] == 9 and summary["tasks"]["test_point"]["max_steps"] == 12
+    means = [summary["tasks"][t]["episode_reward"]["mean"] for t in ("test_point", "test_plane")]
+    assert summary["episode_reward"] == pytest.approx(np.mean(means))
+    one = reference / "eval_plane.json"
+    args = ["eval", str(reference), "--episodes", "2", "--set", "env_config.task=test_plane", "--out", str(one)]
+    assert main(args) == 0
+    alone = json.loads(one.read_text())
+    assert "tasks" not in alone and alone["episode_reward"] == summary["tasks"]["test_plane"]["episode_reward"]
+
+
+@pytest.mark.slow
+@pytest.mark.xdist_group("suite")
+def test_a_recurrent_network_trains_on_a_suite_and_final_videos_are_per_task(tmp_path):
+    run = tmp_path / "gru"
+    sets = ["network.core=gru", "network.core_size=8", "ppo.num_evals=2", "log.video_seconds=0.2"]
+    assert (
+        main(
+            ["train", "test_suite", "--preset", "tiny", "--steps", str(K), "--out", str(run)]
+            + [a for s in sets for a in ("--set", s)]
+        )
+        == 0
+    )
+    last = metrics_io.read(run / "metrics.jsonl")[-1]
+    assert last["step"] == K and np.isfinite(last["eval/test_point/episode_reward"])
+    assert np.isfinite(last["eval/test_plane/episode_reward"])
+    for task in ("test_point", "test_plane"):
+        assert read_mp4(str(run / f"final_policy_{task}.mp4")).shape[0] >= 2
+    assert not (run / "final_policy.mp4").exists()
+
+
+@pytest.mark.parametrize(
+    "values, words",
+    [
+        ({"vision": {"enabled": True}}, "cannot train with --vision"),
+        ({"randomize": {"friction": [0.5, 1.5]}}, "cannot train with randomize"),
+        ({"network": {"architecture": "intention"}}, "cannot train with network.architecture: intention"),
+        ({"ppo": {"num_eval_envs": 3}}, "multiple of its 2 tasks"),
+        ({"ppo": {"num_envs": 18, "batch_size": 18}}, "sum of their shares"),
+    ],
+)
+def test_what_a_suite_cannot_train_with_is_refused_before_anything_is_built(values, words):
+    with pytest.raises(VnlError, match=words):
+        config(**values)
+
+
+def test_one_task_of_a_suite_is_evaluated_not_trained(tmp_path):
+    with pytest.raises(VnlError, match="picks one task of test_suite"):
+        trainer.train(config(env_config={"task": "test_point"}), tmp_path / "run", say=quiet)
+    assert not (tmp_path / "run").exists()

@@ -1,0 +1,67 @@
+"""What PPO does differently for a suite (`vnl.envs.suite`): its batch split between the tasks,
+one evaluation per task, and their metrics, per task and aggregated (docs/how-to/multitask.md)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from vnl.envs.suite import SuiteEnv, SuiteWrapper, split_counts
+from vnl.envs.wrappers import wrap_for_training
+from vnl.errors import VnlError
+
+SUMMED = ("eval/walltime", "eval/epoch_eval_time")
+"""Evaluation metrics that add up over the tasks (time); every other aggregate is the tasks' mean."""
+
+
+def is_suite(env: Any) -> bool:
+    return isinstance(env, SuiteEnv)
+
+
+def check(env: SuiteEnv, config: Any, per_device: int) -> None:
+    """`VnlError` unless each device's `per_device` envs split by the suite's shares and the
+    evaluation envs split evenly between the tasks, and nothing a suite cannot do is asked for."""
+    p = config.ppo
+    split_counts(per_device, env.shares)
+    if p.num_eval_envs % len(env.tasks):
+        raise VnlError(
+            f"ppo.num_eval_envs ({p.num_eval_envs}) must be a multiple of the suite's {len(env.tasks)} tasks "
+            "(each task is evaluated on its share)"
+        )
+    if config.randomize.enabled:
+        raise VnlError("randomize: a suite's members cannot be randomized yet; set randomize.enabled=false")
+
+
+def training_env(env: SuiteEnv, config: Any) -> SuiteWrapper:
+    """The suite's tasks as one training batch (`SuiteWrapper`)."""
+    p = config.ppo
+    return SuiteWrapper(env, p.episode_length, p.action_repeat)
+
+
+def evaluation_envs(env: SuiteEnv, config: Any) -> dict[str, tuple[Any, int, int]]:
+    """{task: (its evaluation env, its evaluation envs, its episode length)}: every member, the
+    tasks not trained on included (what the network does on them is worth knowing)."""
+    p = config.ppo
+    lengths = {name: p.episode_length or member.config.episode_length for name, member in env.members.items()}
+    n = p.num_eval_envs // len(env.tasks)
+    return {
+        name: (wrap_for_training(view, lengths[name], p.action_repeat), n, lengths[name])
+        for name, view in env.views.items()
+    }
+
+
+def metrics(
+    per_task: dict[str, dict[str, Any]], training_metrics: dict[str, float], trained: tuple[str, ...]
+) -> dict[str, Any]:
+    """Each task's evaluation metrics as `eval/<task>/<name>`, and `eval/<name>` over the tasks
+    trained on: the sum of times, the mean of the rest (`eval/episode_reward`, the unweighted mean
+    of the tasks' returns, is what progress lines and `keep_best` read)."""
+    out: dict[str, Any] = dict(training_metrics)
+    for task, m in per_task.items():
+        out.update({f"eval/{task}/{k.removeprefix('eval/')}": v for k, v in m.items() if k.startswith("eval/")})
+    shared = set.intersection(*(set(per_task[t]) for t in trained))
+    for k in sorted(x for x in shared if x.startswith("eval/")):
+        values = [float(per_task[t][k]) for t in trained]
+        out[k] = float(np.sum(values)) if k in SUMMED else float(np.mean(values))
+    return out
