@@ -317,7 +317,7 @@ class SuiteEnv:
     def __getattr__(self, name: str) -> Any:
         if name in ("mj_model", "mjx_model", "n_substeps", "reset", "step"):
             raise VnlError(
-                f"a suite has {len(self.members)} worlds, not one, so it has no {name}: pick one task with "
+                f"a suite has {len(self.members)} worlds, not one, so it has no {name}: pick one task with --set "
                 f"env_config.task=NAME (one of {', '.join(self.members)})"
             )
         raise AttributeError(name)
