@@ -9,7 +9,7 @@ import pytest
 import vnl
 from vnl.arenas import gaps
 from vnl.rollout import Rollout, summarize
-from vnl.train.progress import make_record
+from vnl.train.progress import make_record, progress_line
 
 
 def test_gaps_behind_counts_the_gaps_whose_far_edge_was_passed():
@@ -105,3 +105,19 @@ def test_summary_and_records_derive_fractions_and_escape_times():
     assert s["time_to_escape"]["mean"] == pytest.approx(0.75)  # (1.0 + 0.5) / 2, the escapers only
     record = make_record(7, 1.0, {"eval/episode_measure/upright_time": 3.0}, episode_seconds=4.0)
     assert record["eval/upright_fraction"] == 0.75
+
+
+def test_a_suites_record_and_progress_line_give_each_task():
+    metrics = {
+        "eval/episode_reward": 30.0,
+        "eval/gaps/episode_reward": 50.0,
+        "eval/gaps/episode_reward/velocity": 40.0,
+        "eval/gaps/episode_x_velocity": 20.0,
+        "eval/gaps/avg_episode_length": 40.0,
+        "eval/bowl/episode_reward": 10.0,
+    }
+    record = make_record(512, 1.0, metrics)
+    assert record["eval/gaps/mean_forward_velocity"] == 0.5 and "eval/bowl/mean_forward_velocity" not in record
+    line = progress_line(record, 0, 1024, 10.0, 0.0)
+    assert "| reward     30.00 | gaps 50.0 | bowl 10.0 |" in line
+    assert "gaps" not in progress_line(make_record(512, 1.0, {"eval/episode_reward": 3.0}), 0, 1024, 1.0, 0.0)

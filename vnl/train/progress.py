@@ -24,12 +24,23 @@ def make_record(
         except (TypeError, ValueError):
             continue
     record["env_steps_per_sec"] = record.get("training/sps", 0.0)
-    length = record.get("eval/avg_episode_length")
-    if length and "eval/episode_x_velocity" in record:
-        record["eval/mean_forward_velocity"] = record["eval/episode_x_velocity"] / length
+    for prefix in ["eval/", *(f"eval/{task}/" for task in task_rewards(record))]:  # a suite: each task's too
+        length = record.get(f"{prefix}avg_episode_length")
+        if length and f"{prefix}episode_x_velocity" in record:
+            record[f"{prefix}mean_forward_velocity"] = record[f"{prefix}episode_x_velocity"] / length
     if episode_seconds and "eval/episode_measure/upright_time" in record:
         record["eval/upright_fraction"] = record["eval/episode_measure/upright_time"] / episode_seconds
     return record
+
+
+def task_rewards(record: dict[str, Any]) -> dict[str, Any]:
+    """{task: its `eval/<task>/episode_reward`} of a suite's record, in the record's order ({} for
+    a run of one task)."""
+    return {
+        k.split("/")[1]: v
+        for k, v in record.items()
+        if k.startswith("eval/") and k.endswith("/episode_reward") and k.count("/") == 2
+    }
 
 
 def fmt_time(seconds: float) -> str:
@@ -48,7 +59,8 @@ def number(value: Any, spec: str) -> str:
 def progress_line(
     record: dict[str, Any], first_step: int, total_steps: int, elapsed: float, elapsed_before: float
 ) -> str:
-    """`[vnl] step 348,160/1,000,000 (35%) | reward 523.1 | vx +0.21 m/s | 2,850 steps/s | ...`.
+    """`[vnl] step 348,160/1,000,000 (35%) | reward 523.1 | vx +0.21 m/s | 2,850 steps/s | ...`
+    (a suite: each task's reward after the mean, `| ant_run_gaps 612.0 | ant_escape_bowl 88.4 |`).
 
     `first_step` is where this session started (the ETA extrapolates from it), `elapsed` this
     session's seconds and `elapsed_before` the seconds of the sessions it resumes.
@@ -61,6 +73,7 @@ def progress_line(
         f"[vnl] step {step:>11,}/{total_steps:,} ({100 * min(step / total_steps, 1):3.0f}%) | "
         + (f"stage {int(record['curriculum/stage']) + 1} | " if "curriculum/stage" in record else "")
         + f"reward {number(record.get('eval/episode_reward'), '9.2f')} | "
+        + "".join(f"{task} {number(v, '.1f')} | " for task, v in task_rewards(record).items())
         + (f"vx {number(vx, '+.2f')} m/s | " if "eval/mean_forward_velocity" in record else "")
         + f"{number(record.get('env_steps_per_sec'), '7,.0f')} steps/s | "
         f"elapsed {fmt_time(elapsed_before + elapsed)} | ETA {eta}"
