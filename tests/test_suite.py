@@ -177,3 +177,22 @@ def test_rodent_suite_layout_is_the_union_of_the_four_rat_tasks():
         "rodent_escape_bowl": 1000,
         "rodent_two_touch": 1500,
     }
+
+
+def test_saved_batch_rows_are_member_major_whatever_the_devices():
+    """A checkpoint's batch-wide rows (observations, cores) follow its members' own rows, so a run
+    resumed on another number of devices gives every env its own observation back."""
+    from vnl.ppo.suite_loop import row_order
+
+    def device_major_tasks(devices, shares, n=8):  # which member holds each row, devices' layout
+        counts = suite.split_counts(n // devices, shares)
+        return np.concatenate([np.repeat(np.arange(len(shares)), counts)] * devices)
+
+    for shares in [(1, 1), (1, 3)]:
+        two = device_major_tasks(2, shares)
+        saved = two[row_order(8, shares, 2)]  # what a run on 2 devices writes
+        assert saved.tolist() == sorted(saved.tolist())  # member 0's rows, then member 1's
+        for devices in (1, 2):  # read back on 1 or 2 devices: each row is the member's again
+            restored = saved[np.argsort(row_order(8, shares, devices))]
+            np.testing.assert_array_equal(restored, device_major_tasks(devices, shares))
+    assert row_order(8, (1, 1), 2).tolist() == [0, 1, 4, 5, 2, 3, 6, 7]

@@ -14,7 +14,7 @@ from vnl.io import checkpoint
 from vnl.io import metrics as metrics_io
 from vnl.io.video import read_mp4
 from vnl.train import config as train_config
-from vnl.train import trainer
+from vnl.train import rundir, trainer
 
 pytestmark = [pytest.mark.usefixtures("point_envs")]
 
@@ -67,6 +67,8 @@ def test_a_suite_resumes_bit_exact_through_a_compact_checkpoint(reference, tmp_p
     assert members == {"test_point": KEPT["c"], "test_plane": KEPT["c"]}
     rows = {name: arrays[f".env.info['tasks']['{name}'].data.qpos"].shape for name in members}
     assert rows == {"test_point": (4, 1), "test_plane": (12, 2)}  # 16 envs split 1:3, each its own nq
+    held = sum(v.nbytes for k, v in arrays.items() if k.startswith(".env"))
+    assert 16 * rundir.env_state_bytes(config().make_env()) == held  # the size estimate, to the byte
     trainer.resume(run, flags={"ppo": {"num_timesteps": 2 * K}}, say=quiet)
     assert_same_run(run, reference)
 

@@ -339,6 +339,9 @@ class PPOLoop:
             from jax.experimental import multihost_utils
 
             env = jax.tree.map(np.asarray, multihost_utils.process_allgather(env, tiled=True))
+        if self.suite and (gather or self.process_count == 1):  # member-major rows, whatever the devices
+            order = suite_loop.row_order(self.config.ppo.num_envs, self.task_env.shares, jax.device_count())
+            env = {k: x[order] if suite_loop.is_batch_wide(k) else x for k, x in env.items()}
         training = jax.device_get(_unreplicate(state.training))
         host = LoopState(training=training, env=None, key=np.asarray(state.key), eval_key=np.asarray(state.eval_key))
         return {**{k: np.asarray(x) for k, x in _named(host).items()}, **env}
@@ -377,7 +380,14 @@ class PPOLoop:
         paths, treedef = jax.tree_util.tree_flatten_with_path(host)
         leaves = [arrays[jax.tree_util.keystr(path)] for path, _ in paths]
         restored = jax.tree_util.tree_unflatten(treedef, leaves)
-        env = jax.tree.map(self._local_rows, restored.env)
+        env = restored.env
+        if self.suite:  # back from member-major rows to this machine's devices
+            order = suite_loop.row_order(self.config.ppo.num_envs, self.task_env.shares, jax.device_count())
+            inverse = np.argsort(order)
+            env = jax.tree_util.tree_map_with_path(
+                lambda p, x: x[inverse] if suite_loop.is_batch_wide(".env" + jax.tree_util.keystr(p)) else x, env
+            )
+        env = jax.tree.map(self._local_rows, env)
         return LoopState(
             training=self._replicate(restored.training),
             env=self._place(env),

@@ -51,6 +51,25 @@ def evaluation_envs(env: SuiteEnv, config: Any) -> dict[str, tuple[Any, int, int
     }
 
 
+def row_order(num_envs: int, shares: tuple[int, ...], devices: int) -> np.ndarray:
+    """The batch's rows (device-major, as the devices hold them: each device's envs split between
+    the members) in member-major order: member 0's rows on every device, then member 1's, ...
+    A checkpoint keeps the suite's batch-wide arrays (observations, episode bookkeeping, recurrent
+    cores) in this order, as each member's own arrays are, so that a run resumed on another number
+    of devices gives every env back its own rows."""
+    per = num_envs // devices
+    counts = split_counts(per, shares)
+    starts = np.cumsum([0, *counts[:-1]])
+    return np.concatenate(
+        [d * per + np.arange(s, s + c) for s, c in zip(starts, counts, strict=True) for d in range(devices)]
+    )
+
+
+def is_batch_wide(path: str) -> bool:
+    """Whether the saved env array at `path` spans the whole batch (not one member's own state)."""
+    return "['tasks']" not in path
+
+
 def metrics(
     per_task: dict[str, dict[str, Any]], training_metrics: dict[str, float], trained: tuple[str, ...]
 ) -> dict[str, Any]:

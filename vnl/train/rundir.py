@@ -16,7 +16,7 @@ import numpy as np
 
 from vnl import durable, physics
 from vnl import typed_config as config_lib
-from vnl.envs.suite import SuiteEnv
+from vnl.envs.suite import SuiteEnv, SuiteWrapper
 from vnl.envs.wrappers import wrap_for_training
 from vnl.errors import VnlError
 from vnl.io import checkpoint, layout, runlock
@@ -138,14 +138,14 @@ def env_state_bytes(env: Env, compact: bool = True) -> int:
     """The bytes a checkpoint holds of one training env's state, as training wraps it (its physics
     state twice: current and first, for auto-reset), without the physics fields the next step
     recomputes (`physics.derived_paths`; with them, `compact=False`, as before format 2). A suite's:
-    the mean over its tasks, weighted by their shares of the batch."""
-    if isinstance(env, SuiteEnv):
-        views = [(env.views[name], share) for name, share in zip(env.tasks, env.shares, strict=True)]
-        return sum(share * env_state_bytes(view, compact) for view, share in views) // sum(env.shares)
-    state = jax.eval_shape(wrap_for_training(env, episode_length=1).reset, jax.ShapeDtypeStruct((1, 2), np.uint32))
+    the mean over its envs (each member's by its share, and the batch-wide arrays)."""
+    suite = isinstance(env, SuiteEnv)
+    rows = sum(env.shares) if suite else 1  # a suite: one env of each member per share
+    wrapped = SuiteWrapper(env, 1) if suite else wrap_for_training(env, episode_length=1)
+    state = jax.eval_shape(wrapped.reset, jax.ShapeDtypeStruct((rows, 2), np.uint32))
     dropped = set(physics.derived_paths(state, env.previous_state_reads)) if compact else set()
     leaves = jax.tree_util.tree_flatten_with_path(state)[0]
-    return sum(_nbytes(x) for path, x in leaves if jax.tree_util.keystr(path) not in dropped)
+    return sum(_nbytes(x) for path, x in leaves if jax.tree_util.keystr(path) not in dropped) // rows
 
 
 def _nbytes(x: Any) -> int:
