@@ -146,16 +146,7 @@ class PPOLoop:
         if self.suite:
             suite_loop.check(env, config, self.local_envs // self.n_devices)
         train_models, eval_models = self._randomized_models(env)
-        if self.suite:
-            self.env = suite_loop.training_env(env, config)
-        else:
-            self.env = wrap_for_training(
-                env,
-                episode_length=self.episode_length,
-                action_repeat=p.action_repeat,
-                randomization_fn=train_models,
-                axis_name=AXIS,
-            )
+        self.env = suite_loop.training_env(env, config) if self.suite else self._wrap(env, train_models, AXIS)
         self.task_env = env  # the unwrapped env being trained
         self.observation_size = env.observation_size
         self.action_size = env.action_size
@@ -178,15 +169,18 @@ class PPOLoop:
         self._reset = jax.pmap(self.env.reset, axis_name=AXIS)
         self._identity = jax.pmap(lambda x: x, axis_name=AXIS)
         if self.suite:  # one evaluator per task
-            self._evaluators = {
-                name: self._make_evaluator(*spec) for name, spec in suite_loop.evaluation_envs(env, config).items()
-            }
+            specs = suite_loop.evaluation_envs(env, config)
+            self._evaluators = {name: self._make_evaluator(*spec) for name, spec in specs.items()}
         else:
-            eval_env = wrap_for_training(
-                env, episode_length=self.episode_length, action_repeat=p.action_repeat, randomization_fn=eval_models
-            )
-            self._evaluator = self._make_evaluator(eval_env, p.num_eval_envs, self.episode_length)
+            self._evaluator = self._make_evaluator(self._wrap(env, eval_models), p.num_eval_envs, self.episode_length)
         self.training_walltime = 0.0
+
+    def _wrap(self, env: Any, models: Any, axis_name: str | None = None) -> Any:
+        """`env` wrapped for training or evaluation (`wrap_for_training`), with `models`' randomization."""
+        p = self.config.ppo
+        return wrap_for_training(
+            env, self.episode_length, p.action_repeat, randomization_fn=models, axis_name=axis_name
+        )
 
     # ---- what a recurrent loop (vnl.ppo.recurrent_ppo) replaces -----------------------------------
 
@@ -340,8 +334,7 @@ class PPOLoop:
 
             env = jax.tree.map(np.asarray, multihost_utils.process_allgather(env, tiled=True))
         if self.suite and (gather or self.process_count == 1):  # member-major rows, whatever the devices
-            order = suite_loop.row_order(self.config.ppo.num_envs, self.task_env.shares, jax.device_count())
-            env = {k: x[order] if suite_loop.is_batch_wide(k) else x for k, x in env.items()}
+            env = suite_loop.member_major(env, self.config.ppo.num_envs, self.task_env.shares)
         training = jax.device_get(_unreplicate(state.training))
         host = LoopState(training=training, env=None, key=np.asarray(state.key), eval_key=np.asarray(state.eval_key))
         return {**{k: np.asarray(x) for k, x in _named(host).items()}, **env}
@@ -382,11 +375,7 @@ class PPOLoop:
         restored = jax.tree_util.tree_unflatten(treedef, leaves)
         env = restored.env
         if self.suite:  # back from member-major rows to this machine's devices
-            order = suite_loop.row_order(self.config.ppo.num_envs, self.task_env.shares, jax.device_count())
-            inverse = np.argsort(order)
-            env = jax.tree_util.tree_map_with_path(
-                lambda p, x: x[inverse] if suite_loop.is_batch_wide(".env" + jax.tree_util.keystr(p)) else x, env
-            )
+            env = suite_loop.device_major(env, self.config.ppo.num_envs, self.task_env.shares)
         env = jax.tree.map(self._local_rows, env)
         return LoopState(
             training=self._replicate(restored.training),
@@ -463,12 +452,10 @@ class PPOLoop:
         if not self.suite:
             metrics, eval_key = self._evaluate_one(self._evaluator, state.eval_key, params, training_metrics)
             return state.replace(eval_key=eval_key), metrics
-        per_task = {
-            name: self._evaluate_one(evaluator, jax.random.fold_in(state.eval_key, k), params, {})[0]
-            for k, (name, evaluator) in enumerate(self._evaluators.items())
-        }
-        metrics = suite_loop.metrics(per_task, training_metrics, self.task_env.tasks)
-        return state.replace(eval_key=jax.random.split(state.eval_key)[0]), metrics
+        metrics, eval_key = suite_loop.evaluate(
+            self._evaluators, self._evaluate_one, state.eval_key, params, training_metrics, self.task_env.tasks
+        )
+        return state.replace(eval_key=eval_key), metrics
 
     def _evaluate_one(
         self, evaluator: Any, key: jax.Array, params: Any, training_metrics: dict[str, float]

@@ -3,8 +3,10 @@ one evaluation per task, and their metrics, per task and aggregated (docs/how-to
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
+import jax
 import numpy as np
 
 from vnl.envs.suite import SuiteEnv, SuiteWrapper, split_counts
@@ -68,6 +70,38 @@ def row_order(num_envs: int, shares: tuple[int, ...], devices: int) -> np.ndarra
 def is_batch_wide(path: str) -> bool:
     """Whether the saved env array at `path` spans the whole batch (not one member's own state)."""
     return "['tasks']" not in path
+
+
+def member_major(arrays: dict[str, np.ndarray], num_envs: int, shares: tuple[int, ...]) -> dict[str, np.ndarray]:
+    """A checkpoint's env arrays ({path: (num_envs or a member's rows, ...)}, the devices' rows in
+    order) with the batch-wide ones in member-major order (`row_order`)."""
+    order = row_order(num_envs, shares, jax.device_count())
+    return {k: x[order] if is_batch_wide(k) else x for k, x in arrays.items()}
+
+
+def device_major(env: Any, num_envs: int, shares: tuple[int, ...]) -> Any:
+    """The inverse of `member_major` on the restored env state tree (rows for this machine's devices)."""
+    inverse = np.argsort(row_order(num_envs, shares, jax.device_count()))
+    return jax.tree_util.tree_map_with_path(
+        lambda p, x: x[inverse] if is_batch_wide(jax.tree_util.keystr(p)) else x, env
+    )
+
+
+def evaluate(
+    evaluators: dict[str, Any],
+    evaluate_one: Callable[[Any, jax.Array, Any, dict[str, float]], tuple[dict[str, Any], jax.Array]],
+    key: jax.Array,
+    params: Any,
+    training_metrics: dict[str, float],
+    trained: tuple[str, ...],
+) -> tuple[dict[str, Any], jax.Array]:
+    """Each task's evaluation (`evaluate_one(evaluator, key, params, {})`, the k-th from `key`
+    folded with k) and their `metrics`; returns (metrics, the key after this evaluation)."""
+    per_task = {
+        name: evaluate_one(evaluator, jax.random.fold_in(key, k), params, {})[0]
+        for k, (name, evaluator) in enumerate(evaluators.items())
+    }
+    return metrics(per_task, training_metrics, trained), jax.random.split(key)[0]
 
 
 def metrics(
