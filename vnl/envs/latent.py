@@ -20,6 +20,7 @@ from typing import Any
 import jax
 import jax.numpy as jp
 
+from vnl.envs.adapter import EnvAdapter
 from vnl.tasks.contract import Env, State
 
 Decode = Callable[[jax.Array, jax.Array], jax.Array]
@@ -28,22 +29,17 @@ Activity = Callable[[jax.Array, jax.Array], dict[str, jax.Array]]
 """`activity(latent (..., L), obs (..., O)) -> {layer name: (..., units)}`: the decoder's layers."""
 
 
-class LatentActionEnv(Env):
+class LatentActionEnv(EnvAdapter):
     """`env` acted on through `decode` (see the module docstring). Flat observations only."""
 
     def __init__(
         self, env: Env, decode: Decode, latent_size: int, scale: float = 1.0, activity: Activity | None = None
     ) -> None:
-        self.inner = env
+        super().__init__(env)
         self.decode = decode
         self.activity = activity
         self.latent_size = int(latent_size)
         self.scale = float(scale)
-        # Not Env.__init__: the wrapped env owns the model (no second mjx.put_model).
-        self._config = env.config
-        self._mj_model = env.mj_model
-        self._mjx_model = env.mjx_model
-        self._n_substeps = env.n_substeps
 
     def latent(self, action: jax.Array) -> jax.Array:
         """The latent (..., L) of latent actions `action` (..., L): `scale` × action, NaN -> 0."""
@@ -79,32 +75,7 @@ class LatentActionEnv(Env):
     def observation_layout(self) -> list[tuple[str, int]]:
         return self.inner.observation_layout()
 
-    @property
-    def unwrapped(self) -> Env:
-        return self.inner.unwrapped
-
-    @property
-    def backend(self) -> str:
-        return self.inner.backend
-
-    @property
-    def physics(self) -> Any:
-        return self.inner.physics
-
-    @property
-    def previous_state_reads(self) -> tuple[str, ...] | None:  # type: ignore[override]
-        """The wrapped env's: the decoder reads the observation, which the state carries."""
-        return self.inner.previous_state_reads
-
     def with_model(self, mjx_model: Any) -> Env:
         return LatentActionEnv(
             self.inner.with_model(mjx_model), self.decode, self.latent_size, self.scale, self.activity
         )
-
-    def set_per_env_fields(self, names: tuple[str, ...]) -> None:
-        self.inner.set_per_env_fields(names)
-
-    def __getattr__(self, name: str) -> Any:  # task attributes (cameras, walker, ...) of the wrapped env
-        if name == "inner":
-            raise AttributeError(name)
-        return getattr(self.inner, name)

@@ -30,6 +30,7 @@ import jax
 import jax.numpy as jp
 import numpy as np
 
+from vnl.envs.adapter import EnvAdapter
 from vnl.envs.wrappers import wrap_for_training
 from vnl.errors import VnlError
 from vnl.tasks.contract import Env, State
@@ -88,22 +89,17 @@ def gather_index(union: Layout, keys: Sequence[str], layout: Layout, index: int)
     return np.asarray(source, dtype=np.int32)
 
 
-class TaskView(Env):
+class TaskView(EnvAdapter):
     """Member `name` (the `index`-th) of a suite, observing the suite's layout: its observation
     (O,) embedded in the union (W,) as `gather_index` says. Everything else (physics, rewards,
     metrics, cameras, the task's attributes) is the member's: `unwrapped` is the member itself."""
 
     def __init__(self, env: Env, name: str, index: int, union: Layout, keys: Sequence[str]) -> None:
-        self.inner = env
+        super().__init__(env)
         self.task_name = name
         self.task_index = int(index)
         self._union = list(union)
         self._source = jp.asarray(gather_index(union, keys, env.observation_layout(), index))
-        # Not Env.__init__: the member owns its model (no second mjx.put_model).
-        self._config = env.config
-        self._mj_model = env.mj_model
-        self._mjx_model = env.mjx_model
-        self._n_substeps = env.n_substeps
 
     def embed(self, obs: jax.Array) -> jax.Array:
         """The member's observations (..., O) in the suite's layout (..., W)."""
@@ -125,38 +121,10 @@ class TaskView(Env):
     def observation_shape(self) -> Any:
         return (sum(w for _, w in self._union),)
 
-    @property
-    def action_size(self) -> int:
-        return self.inner.action_size
-
-    @property
-    def unwrapped(self) -> Env:
-        return self.inner.unwrapped
-
-    @property
-    def backend(self) -> str:
-        return self.inner.backend
-
-    @property
-    def physics(self) -> Any:
-        return self.inner.physics
-
-    @property
-    def previous_state_reads(self) -> tuple[str, ...] | None:  # type: ignore[override]
-        return self.inner.previous_state_reads
-
     def with_model(self, mjx_model: Any) -> Env:
         view = TaskView.__new__(TaskView)
         view.__dict__.update(self.__dict__, inner=self.inner.with_model(mjx_model), _mjx_model=mjx_model)
         return view
-
-    def set_per_env_fields(self, names: tuple[str, ...]) -> None:
-        self.inner.set_per_env_fields(names)
-
-    def __getattr__(self, name: str) -> Any:  # task attributes (cameras, walker, ...) of the member
-        if name == "inner":
-            raise AttributeError(name)
-        return getattr(self.inner, name)
 
 
 RODENT_SUITE = ("rodent_run_gaps", "rodent_maze_forage", "rodent_escape_bowl", "rodent_two_touch")
