@@ -21,7 +21,9 @@ from vnl.envs import wrappers
 from vnl.errors import VnlError
 from vnl.tasks import maze_forage
 
-pytestmark = pytest.mark.xdist_group("rodent_maze_forage-c")
+# One group with test_envs's MJX rollout of this env: a second marker would join the names into a new group
+# (xdist joins every xdist_group of a test), and the C-vs-MJX test below compiled the rat for MJX again.
+pytestmark = pytest.mark.xdist_group("rodent_maze_forage")
 P = mazes.MazeParams()
 
 
@@ -305,7 +307,6 @@ def test_observations_name_the_targets_left_and_the_walls_around():
 
 
 @pytest.mark.slow
-@pytest.mark.xdist_group("rodent_maze_forage")  # test_envs's MJX group: one compile of the rat in the maze
 def test_mujoco_c_and_mjx_agree_on_a_few_steps():
     """The same resets and random actions under MuJoCo C and MJX: the same maze, boxes, rewards and
     ends, the root within 2 mm and the joints within 0.05 rad after each of 3 control steps (with

@@ -31,7 +31,6 @@ import jax.numpy as jp
 import numpy as np
 
 from vnl.envs.adapter import EnvAdapter
-from vnl.envs.wrappers import wrap_for_training
 from vnl.errors import VnlError
 from vnl.tasks.contract import Env, State
 
@@ -311,6 +310,9 @@ class SuiteWrapper:
     def __init__(self, suite: SuiteEnv, episode_length: int | None = None, action_repeat: int = 1) -> None:
         self.suite = suite
         lengths = suite.episode_lengths(episode_length)
+        # Imported here: brax's wrappers import jaxopt, whose deprecation warning `import vnl` must not print.
+        from vnl.envs.wrappers import wrap_for_training
+
         self.envs = {name: wrap_for_training(suite.views[name], lengths[name], action_repeat) for name in suite.tasks}
 
     def _slices(self, n: int) -> dict[str, slice]:

@@ -42,11 +42,10 @@ from brax.training.agents.ppo import losses as ppo_losses
 from brax.training.agents.ppo import optimizer as ppo_optimizer
 from brax.training.agents.ppo.train import TrainingState
 
-from vnl import physics
 from vnl.envs import randomize
 from vnl.envs.wrappers import wrap_for_training
 from vnl.errors import VnlError
-from vnl.ppo import suite_loop
+from vnl.ppo import state_arrays, suite_loop
 from vnl.ppo.config import RunSettings
 from vnl.ppo.networks import make_inference_fn, make_network
 from vnl.ppo.schedules import KL_RATE_RANGE, current_learning_rate, epoch_length, learning_rate
@@ -67,16 +66,6 @@ class LoopState:
 def _strip_weak_type(tree: Any) -> Any:
     """Same dtypes, not weakly typed: avoids recompiling for Python scalars in user state."""
     return jax.tree.map(lambda x: jp.asarray(x).astype(jp.asarray(x).dtype), tree)
-
-
-def _unreplicate(tree: Any) -> Any:
-    """Device 0's copy of a replicated tree."""
-    return jax.tree.map(lambda x: x.addressable_shards[0].data.squeeze(0), tree)
-
-
-def _named(tree: Any) -> dict[str, Any]:
-    """The leaves of `tree` by their path (`jax.tree_util.keystr`)."""
-    return {jax.tree_util.keystr(path): x for path, x in jax.tree_util.tree_flatten_with_path(tree)[0]}
 
 
 def _without_pixels(obs: Any) -> Any:
@@ -319,81 +308,17 @@ class PPOLoop:
         )
 
     def to_arrays(self, state: LoopState, gather: bool = True, compact: bool = True) -> dict[str, np.ndarray]:
-        """Host arrays named by their path in the state; env arrays flat over environments,
-        (num_envs, ...) — with several processes, gathered from all of them (a collective: every
-        process must call it) unless `gather` is False ((num_envs / processes, ...)). `compact`
-        leaves out the physics fields the next step recomputes (`physics.derived_paths`)."""
-        dropped = set(physics.derived_paths(state.env, self.task_env.previous_state_reads) if compact else ())
-        env = {
-            ".env" + k: np.asarray(x).reshape((x.shape[0] * x.shape[1],) + x.shape[2:])
-            for k, x in _named(state.env).items()
-            if k not in dropped
-        }
-        if gather and self.process_count > 1:
-            from jax.experimental import multihost_utils
-
-            env = jax.tree.map(np.asarray, multihost_utils.process_allgather(env, tiled=True))
-        if self.suite and (gather or self.process_count == 1):  # member-major rows, whatever the devices
-            env = suite_loop.member_major(env, self.config.ppo.num_envs, self.task_env.shares)
-        training = jax.device_get(_unreplicate(state.training))
-        host = LoopState(training=training, env=None, key=np.asarray(state.key), eval_key=np.asarray(state.eval_key))
-        return {**{k: np.asarray(x) for k, x in _named(host).items()}, **env}
+        """Host arrays named by their path in the state (`state_arrays.to_arrays`)."""
+        return state_arrays.to_arrays(self, state, gather, compact)
 
     def from_arrays(self, arrays: dict[str, np.ndarray]) -> LoopState:
-        """The inverse of `to_arrays`; raises `VnlError` if the arrays belong to another setup."""
-        template = self.init(0)
-        flat = self.to_arrays(template, gather=False, compact=False)
-        if self.process_count > 1:  # the saved env arrays hold every process's envs
-            flat = {
-                k: np.broadcast_to(v[:1], (v.shape[0] * self.process_count,) + v.shape[1:])
-                if k.startswith(".env")
-                else v
-                for k, v in flat.items()
-            }
-        left_out = physics.derived_paths(template.env, self.task_env.previous_state_reads)
-        if not any(".env" + p in arrays for p in left_out):  # compact: the next step recomputes the rest
-            recomputed = [".env" + p for p in physics.derived_paths(template.env, ())]
-            arrays = {**{k: flat[k] for k in recomputed if k not in arrays}, **arrays}  # a fresh reset's values
-        missing = sorted(set(flat) - set(arrays))
-        extra = sorted(set(arrays) - set(flat))
-        bad = [k for k in flat if k in arrays and (arrays[k].shape, arrays[k].dtype) != (flat[k].shape, flat[k].dtype)]
-        if missing or extra or bad:
-            detail = "; ".join(
-                f"{name}: {', '.join(keys[:3])}{' ...' if len(keys) > 3 else ''}"
-                for name, keys in (("missing", missing), ("unexpected", extra), ("different shape", bad))
-                if keys
-            )
-            raise VnlError(
-                "the saved training state does not match this env and config "
-                f"({detail}); was the env, network or ppo.num_envs changed?"
-            )
-        host = template.replace(
-            training=_unreplicate(template.training), env=jax.tree.map(lambda x: x[0], template.env)
-        )
-        paths, treedef = jax.tree_util.tree_flatten_with_path(host)
-        leaves = [arrays[jax.tree_util.keystr(path)] for path, _ in paths]
-        restored = jax.tree_util.tree_unflatten(treedef, leaves)
-        env = restored.env
-        if self.suite:  # back from member-major rows to this machine's devices
-            env = suite_loop.device_major(env, self.config.ppo.num_envs, self.task_env.shares)
-        env = jax.tree.map(self._local_rows, env)
-        return LoopState(
-            training=self._replicate(restored.training),
-            env=self._place(env),
-            key=jp.asarray(restored.key),
-            eval_key=jp.asarray(restored.eval_key),
-        )
-
-    def _local_rows(self, x: np.ndarray) -> jax.Array:
-        """This process's rows of a saved env array (all processes' rows of one leaf, a suite's
-        member holding its share), as (devices, rows per device, ...)."""
-        local = x.shape[0] // self.process_count
-        mine = x[self.process_index * local : (self.process_index + 1) * local]
-        return jp.asarray(mine.reshape((self.n_devices, local // self.n_devices) + x.shape[1:]))
+        """The inverse of `to_arrays` (`state_arrays.from_arrays`); `VnlError` if the arrays
+        belong to another setup."""
+        return state_arrays.from_arrays(self, arrays)
 
     def training(self, state: LoopState) -> TrainingState:
         """Brax's `TrainingState` of `state` (one copy, on the host)."""
-        return jax.device_get(_unreplicate(state.training))
+        return jax.device_get(state_arrays.unreplicate(state.training))
 
     def with_training(self, state: LoopState, training: TrainingState) -> LoopState:
         """`state` with its training state replaced by `training` (one copy, host or device),
@@ -402,11 +327,11 @@ class PPOLoop:
 
     def params(self, state: LoopState) -> tuple[Any, Any, Any]:
         """Brax's `(normalizer_params, policy_params, value_params)` on the host."""
-        t = _unreplicate(state.training)
+        t = state_arrays.unreplicate(state.training)
         return jax.device_get((t.normalizer_params, t.params.policy, t.params.value))
 
     def env_steps(self, state: LoopState) -> int:
-        return int(_unreplicate(state.training).env_steps.to_numpy())
+        return int(state_arrays.unreplicate(state.training).env_steps.to_numpy())
 
     # ---- training ------------------------------------------------------------------------------
 
