@@ -92,6 +92,32 @@ def test_vnl_eval_evaluates_every_task_or_the_one_named(reference, capsys):
 
 @pytest.mark.slow
 @pytest.mark.xdist_group("suite")
+def test_vnl_record_records_every_task_into_one_recording_or_the_one_named(reference, capsys):
+    import xarray as xr
+
+    from vnl.recording import stack
+
+    out, one = reference / "rec_all.nc", reference / "rec_plane.nc"
+    assert main(["record", str(reference), "--episodes", "2", "--out", str(out)]) == 0
+    assert (
+        main(["record", str(reference), "--episodes", "2", "--out", str(one), "--set", "env_config.task=test_plane"])
+        == 0
+    )
+    with xr.open_dataset(out) as ds, xr.open_dataset(one) as alone:
+        assert stack.tasks(ds) == ["test_point", "test_plane"] and stack.episode_tasks(ds).tolist() == [0, 0, 1, 1]
+        assert ds.sizes["time"] == 12 and alone.sizes["time"] == 9  # each task its own episode length
+        assert "qpos" in json.loads(ds.attrs["dropped"])  # nq 1 and 2: not stacked
+        assert stack.tasks(alone) == [] and "task" not in alone
+        for name in ("policy_hidden_0", "observation", "action"):  # the same policy on the same episodes
+            np.testing.assert_array_equal(ds[name].values[2:, :9], alone[name].values, err_msg=name)
+        assert ds["observation"].shape[-1] == alone["observation"].shape[-1]  # the suite's one layout
+    assert main(["record", str(reference), "--episodes", "2", "--out", str(reference / "rec.nwb")]) == 2
+    assert "an NWB file holds one task" in capsys.readouterr().err
+    assert not (reference / "rec.nwb").exists()
+
+
+@pytest.mark.slow
+@pytest.mark.xdist_group("suite")
 def test_a_recurrent_network_trains_on_a_suite_and_final_videos_are_per_task(tmp_path):
     run = tmp_path / "gru"
     sets = ["network.core=gru", "network.core_size=8", "ppo.num_evals=2", "log.video_seconds=0.2"]

@@ -1,6 +1,7 @@
 """`vnl analyze RECORDING`: one of the analyses of `vnl.neuro.registry.ANALYSES` (PCA over time,
-encoding, decoding, behavioural states, rhythmic units) of a recording (vnl's NetCDF, or an NWB file: vnl's export
-or a lab's session with units and behaviour), each a PNG and a JSON file."""
+encoding, decoding, behavioural states, embedding, rhythmic units, tasks) of a recording (vnl's
+NetCDF, or an NWB file: vnl's export or a lab's session with units and behaviour), each a PNG and
+a JSON file."""
 
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ from vnl.recording import formats
 def add(sub: Any) -> None:
     p = options.command(
         sub, "analyze",
-        "PCA, encoding, decoding, behavioural states, embedding or rhythmic units of a recording, as PNG + JSON",
+        "PCA, encoding, decoding, behavioural states, embedding, rhythmic units or tasks of a recording, as PNG + JSON",
         run, check, mujoco=False,
     )  # fmt: skip
     p.add_argument(
@@ -44,8 +45,8 @@ def add(sub: Any) -> None:
     p.add_argument("--features", help="encoding and states: comma-separated behaviour variables (encoding's "
                    "default: joint_angle,joint_velocity,com_velocity,forward_speed,foot_contact; an NWB file's: "
                    "all its behaviour)")  # fmt: skip
-    p.add_argument("--states", type=options.integer(2, 20), default=4,
-                   help="states and embedding: how many (default 4)")  # fmt: skip
+    p.add_argument("--states", type=options.integer(2, 20),
+                   help="states, embedding and tasks: how many (default 4; tasks: 10)")  # fmt: skip
     p.add_argument("--segmentation", choices=("hmm", "kmeans"), default="hmm",
                    help="states: a sticky Gaussian HMM (default) or k-means")  # fmt: skip
     p.add_argument("--control", choices=("shift", "shuffle"), default="shift",
@@ -61,7 +62,8 @@ def method_options(args: argparse.Namespace) -> registry.Options:
     """The method's options from the flags."""
     names = tuple(n.strip() for n in args.features.split(",") if n.strip()) if args.features else None
     return registry.Options(
-        layer=args.layer, color=args.color, target=args.target, features=names, states=args.states,
+        layer=args.layer, color=args.color, target=args.target, features=names,
+        states=args.states or registry.DEFAULT_STATES.get(args.method, 4),
         segmentation=args.segmentation, control=args.control, folds=args.folds, seed=args.seed,
     )  # fmt: skip
 

@@ -96,12 +96,16 @@ def run(args: argparse.Namespace) -> int:
         return 0
     from vnl import typed_config
     from vnl.cli.cmd_view import write_view
+    from vnl.envs.suite import SuiteEnv
     from vnl.policy import load_run
     from vnl.recording import model
 
     run = load_run(args.run_dir, step=checks.chosen_step(args.run_dir, args.step), env_set=args.set)
     steps = args.steps or run.config.episode_length()
-    ds = record.record(run, args.episodes, steps, args.seed, deterministic=not args.stochastic)
+    if isinstance(run.env, SuiteEnv):
+        ds, steps = _record_tasks(run, args)
+    else:
+        ds = record.record(run, args.episodes, steps, args.seed, deterministic=not args.stochastic)
     if output_format(args) == "nwb":
         config = typed_config.to_yaml(run.config)
         out = _write_nwb(ds, Path(args.out or default_out(args)), config, args.experimenter)
@@ -113,6 +117,32 @@ def run(args: argparse.Namespace) -> int:
     if args.viewer:
         write_view(ds, run.env, out.with_suffix(".rrd"), 0, 4, True, None)
     return 0
+
+
+def _record_tasks(run: Any, args: argparse.Namespace) -> tuple[Any, str]:
+    """A suite's policy recorded on each of its tasks (`--episodes` each, each task's own episode
+    length unless --steps), stacked into one recording (`vnl.recording.stack`); and the steps
+    recorded, as text."""
+    import dataclasses
+
+    from vnl import record
+    from vnl.recording import stack
+
+    if output_format(args) == "nwb":
+        raise VnlError(
+            f"an NWB file holds one task; {run.config.env} has {len(run.env.views)}: add "
+            f"--set env_config.task=NAME ({', '.join(run.env.views)}), or record them all as NetCDF"
+        )
+    if args.viewer:
+        raise VnlError(f"--viewer draws one task; add --set env_config.task=NAME ({', '.join(run.env.views)})")
+    parts, lengths = {}, []
+    for name, view in run.env.views.items():
+        steps = args.steps or run.config.ppo.episode_length or view.config.episode_length
+        one = dataclasses.replace(run, env=view, env_set=(*run.env_set, f"env_config.task={name}"))
+        print(f"[vnl] recording task {name}: {args.episodes} episodes x {steps} steps", file=sys.stderr)
+        parts[name] = record.record(one, args.episodes, steps, args.seed, deterministic=not args.stochastic)
+        lengths.append(f"{name} {steps}")
+    return stack.stack_tasks(parts), ", ".join(lengths)
 
 
 def _write_nwb(ds: Any, out: Path, config: str | None, experimenter: str | None) -> Path:

@@ -16,7 +16,9 @@ The control asks whether the clusters are structure or chance: the same k-means 
 features with each column permuted over time independently (each keeps its values, their
 co-occurrence is broken); the silhouette score (scikit-learn) of each is reported. The JSON gives
 each behaviour's share of the steps, its mean dwell (s), and the mean of `--color` (default
-forward speed) in it.
+forward speed) in it. A recording of several tasks (`vnl.recording.stack`) is coloured by task by
+default, and each behaviour's JSON entry gives each task's share of its steps: which behaviours
+the tasks share and which one task owns.
 """
 
 from __future__ import annotations
@@ -30,7 +32,7 @@ import numpy as np
 from vnl import durable
 from vnl.errors import VnlError
 from vnl.neuro.registry import Options
-from vnl.recording import behaviour, model
+from vnl.recording import behaviour, model, stack
 
 FEATURES = ("joint_angle", "com_velocity")
 PCS = 8
@@ -73,6 +75,7 @@ class Embedding:
     frequencies: list[float]
     dt: float
     source: str
+    task_names: list[str] = dataclasses.field(default_factory=list)
 
     def behaviours(self) -> list[dict[str, Any]]:
         """Per behaviour: share of steps, mean dwell (s), mean `color` over its steps."""
@@ -88,6 +91,9 @@ class Embedding:
                     f"mean_{self.color_by}": float(np.nanmean(self.color[mine])) if mine.any() else None,
                 }
             )
+            if self.task_names:  # a recording of several tasks: each task's share of the behaviour's steps
+                out[-1]["task_share"] = {t: float(np.mean(self.color[mine] == i)) if mine.any() else 0.0
+                                         for i, t in enumerate(self.task_names)}  # fmt: skip
         return out
 
     def to_json(self) -> dict[str, Any]:
@@ -158,7 +164,9 @@ def analyze(ds: Any, options: Options) -> Embedding:
     names = list(options.features) if options.features else [n for n in FEATURES if n in ds]
     if not names:
         raise VnlError("the recording has no joint_angle or com_velocity; choose behaviour variables with --features")
-    color_by = options.color or ("forward_speed" if "forward_speed" in ds else "reward")
+    task_names = stack.tasks(ds)
+    default = "task" if task_names else "forward_speed" if "forward_speed" in ds else "reward"
+    color_by = options.color or default
     color_all, _ = behaviour.target(ds, color_by)
     amp, episode, time, freqs = wavelet_features(ds, names, 1.0 / dt)
     rng = np.random.default_rng(options.seed)
@@ -174,8 +182,9 @@ def analyze(ds: Any, options: Options) -> Embedding:
     xy = TSNE(2, perplexity=perplexity, init="pca", random_state=options.seed).fit_transform(amp[shown])
     color = color_all[episode, time, 0]
     return Embedding(
-        labels, xy, shown, color, color_by, episode, time, sil, ctrl, names, freqs, dt, model.description(ds)
-    )
+        labels, xy, shown, color, color_by, episode, time, sil, ctrl, names, freqs, dt, model.description(ds),
+        task_names if color_by == stack.TASK else [],
+    )  # fmt: skip
 
 
 def output_name(options: Options, ds: Any = None) -> str:
@@ -201,8 +210,14 @@ def figure(result: Embedding, out: str | Path, dt: float = 1.0) -> Path:
     shown = result.shown
     ax.scatter(result.xy[:, 0], result.xy[:, 1], c=result.labels[shown], cmap="tab10", s=4, vmin=0, vmax=9)
     ax.set_title(f"behaviours (silhouette {result.silhouette:.2f}, control {result.control_silhouette:.2f})")
-    sc = bx.scatter(result.xy[:, 0], result.xy[:, 1], c=result.color[shown], cmap="viridis", s=4)
-    fig.colorbar(sc, ax=bx, label=result.color_by)
+    if result.task_names:  # one colour per task, named
+        for i, name in enumerate(result.task_names):
+            mine = result.color[shown] == i
+            bx.scatter(result.xy[mine, 0], result.xy[mine, 1], color=f"C{i % 10}", s=4, label=name)
+        bx.legend(fontsize=8, markerscale=3)
+    else:
+        sc = bx.scatter(result.xy[:, 0], result.xy[:, 1], c=result.color[shown], cmap="viridis", s=4)
+        fig.colorbar(sc, ax=bx, label=result.color_by)
     bx.set_title(f"coloured by {result.color_by}")
     for axis in (ax, bx):
         axis.set_xticks([])

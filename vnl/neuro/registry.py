@@ -52,7 +52,14 @@ ANALYSES = {  # name -> (module, what it does: the --method help)
         "vnl.neuro.rhythm",
         "units oscillating with the gait: spectral index at the feet's frequency, phase locking against --control",
     ),
+    "tasks": (
+        "vnl.neuro.tasks",
+        "a suite's recording of several tasks: each layer's task-modulated units and its RSA of --states "
+        "behaviours across tasks",
+    ),
 }
+DEFAULT_STATES = {"tasks": 10}
+"""--states when it is not given, by method (else 4)."""
 
 MEASURES = {  # name -> (module, what it does: the --measure help)
     "cka": ("vnl.neuro.cka", "linear CKA (default)"),

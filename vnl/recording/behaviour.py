@@ -262,10 +262,10 @@ def available(ds: Any) -> list[str]:
     """The behaviour variables of a recording, each a feature or a decoding target by its name:
     those an NWB file held (its `behaviour` attribute, `vnl.recording.nwb_reader`), or a vnl
     recording's per-step variables with one to a few columns (`forward_speed`, `joint_angle`, ...),
-    neither the layers nor the bookkeeping (`active`, `done`, `nwb_time`)."""
+    neither the layers nor the bookkeeping (`active`, `done`, `nwb_time`, a stacked recording's `task`)."""
     if "behaviour" in ds.attrs:
         return [str(n) for n in json.loads(ds.attrs["behaviour"]) if n in ds]
-    skip = {"active", "done", "nwb_time", "observation", *model.layers(ds)}
+    skip = {"active", "done", "nwb_time", "observation", "task", *model.layers(ds)}
     return [str(v) for v in ds.data_vars if ds[v].dims[:2] == model.STEP_DIMS and ds[v].ndim <= 3 and v not in skip]
 
 

@@ -1,0 +1,154 @@
+"""A recording of several tasks (`vnl.recording.stack`) and the cross-task analysis
+(`vnl analyze --method tasks`) on synthetic recordings with planted structure: one layer codes the
+behaviour the same way in every task, one codes it differently per task, one carries the task."""
+
+import json
+
+import numpy as np
+import pytest
+import xarray as xr
+
+from vnl.cli import main
+from vnl.errors import VnlError
+from vnl.neuro import tasks as tasks_method
+from vnl.neuro.registry import Options
+from vnl.recording import stack
+
+E, DT, J, K, U = 4, 0.02, 6, 5, 12
+FREQS = (1.0, 2.0, 4.0, 7.0, 12.0)  # one movement per behaviour
+TASKS = ("run", "forage", "touch")
+
+
+@pytest.fixture(autouse=True)
+def fewer_repeats(monkeypatch):
+    monkeypatch.setattr(tasks_method, "CONTROL_REPEATS", 8)
+
+
+def behaviour_blocks(rng, steps, occupancy):
+    """(steps,) behaviour labels in blocks of 0.8-1.6 s, drawn with `occupancy` (K,)."""
+    out, t = np.zeros(steps, int), 0
+    while t < steps:
+        n = int(rng.integers(40, 80))
+        out[t : t + n], t = rng.choice(K, p=occupancy), t + n
+    return out
+
+
+def task_recording(i, steps, rng, codes, extra=None):
+    """One task's recording: joints oscillating at the behaviour's frequency; layers
+    `policy_hidden_0` (the same code of the behaviour in every task), `policy_hidden_1` (a code
+    of its own per task), `value_hidden_0` (noise plus a constant per task)."""
+    occupancy = np.roll(np.array([0.3, 0.25, 0.2, 0.15, 0.1]), i)
+    label = np.stack([behaviour_blocks(rng, steps, occupancy) for _ in range(E)])
+    phase = 2 * np.pi * np.cumsum(np.asarray(FREQS)[label] * DT, axis=1)
+    angle = np.sin(phase[..., None] + np.linspace(0, np.pi, J)) + 0.05 * rng.normal(size=(E, steps, J))
+    onehot = np.eye(K)[label]
+    noise = lambda: 0.3 * rng.normal(size=(E, steps, U))  # noqa: E731
+    et = ("episode", "time")
+    data = {
+        "active": (et, np.ones((E, steps))),
+        "joint_angle": (et + ("joint",), angle),
+        "com_velocity": (et + ("axis",), 0.01 * rng.normal(size=(E, steps, 3))),
+        "policy_hidden_0": (et + ("policy_hidden_0_unit",), onehot @ codes["shared"] + noise()),
+        "policy_hidden_1": (et + ("policy_hidden_1_unit",), onehot @ codes["own"][i] + noise()),
+        "value_hidden_0": (et + ("value_hidden_0_unit",), codes["offset"][i] + noise()),
+        "body_pos": (et + ("body", "xyz"), np.zeros((E, steps, 2 + i, 3))),  # arenas differ
+        **(extra or {}),
+    }
+    coords = {"episode": np.arange(E), "time": np.arange(steps) * DT, "joint": [f"j{j}" for j in range(J)],
+              "axis": ["x", "y", "z"], "body": [f"b{j}" for j in range(2 + i)], "xyz": ["x", "y", "z"]}  # fmt: skip
+    attrs = {"env": "synthetic_suite", "checkpoint_step": 7, "control_dt": DT, "env_set": f"[task={TASKS[i]}]"}
+    return xr.Dataset(data, coords=coords, attrs=attrs)
+
+
+def stacked(seed=0, steps=(400, 300, 350)):
+    rng = np.random.default_rng(seed)
+    codes = {
+        "shared": 2 * rng.normal(size=(K, U)),
+        "own": [2 * rng.normal(size=(K, U)) for _ in TASKS],
+        "offset": [3 * rng.normal(size=U) for _ in TASKS],
+    }
+    extra = {"gap_distance": (("episode", "time"), np.ones((E, steps[0])))}
+    parts = {name: task_recording(i, n, rng, codes, extra if i == 0 else None)
+             for i, (name, n) in enumerate(zip(TASKS, steps, strict=True))}  # fmt: skip
+    return stack.stack_tasks(parts), parts
+
+
+def test_stacking_keeps_what_the_tasks_share_and_pads_the_shorter_episodes():
+    ds, parts = stacked()
+    assert stack.tasks(ds) == list(TASKS) and ds.sizes["episode"] == 3 * E and ds.sizes["time"] == 400
+    assert stack.episode_tasks(ds).tolist() == [0] * E + [1] * E + [2] * E
+    assert "body_pos" not in ds and json.loads(ds.attrs["dropped"]) == ["body_pos"]
+    assert np.asarray(ds["active"].values[E : 2 * E, 300:]).sum() == 0  # the second task's 300 steps, padded
+    assert np.asarray(ds["active"].values[E : 2 * E, :300]).all()
+    np.testing.assert_array_equal(
+        ds["policy_hidden_0"].values[E : 2 * E, :300], parts["forage"]["policy_hidden_0"].values
+    )
+    gap = ds["gap_distance"].values
+    assert (gap[:E] == 1).all() and np.isnan(gap[E:]).all()  # one task's variable, NaN in the others'
+    assert "env_set" not in ds.attrs and ds.attrs["control_dt"] == DT and ds.attrs["checkpoint_step"] == 7
+
+
+def test_stacking_refuses_recordings_of_different_networks_and_a_single_task():
+    _, parts = stacked()
+    other = dict(parts, touch=parts["touch"].drop_vars("value_hidden_0"))
+    with pytest.raises(VnlError, match="different layers"):
+        stack.stack_tasks(other)
+    with pytest.raises(VnlError, match="two recordings"):
+        stack.stack_tasks({"run": parts["run"]})
+
+
+def test_the_planted_invariant_task_specific_and_task_carrying_layers_are_told_apart():
+    ds, _ = stacked()
+    r = tasks_method.analyze(ds, Options(states=K))
+    shared, own, tonic = (r.summary(n) for n in ("policy_hidden_0", "policy_hidden_1", "value_hidden_0"))
+    # the same code of behaviour in every task: as similar across tasks as within one, above the control
+    assert shared["cross_task_rsa"] > 0.8 and shared["within_task_rsa"] > 0.8
+    assert shared["cross_task_rsa"] > shared["control_cross_task_rsa_95"]
+    # a code of its own per task: reliable within a task, not across tasks
+    assert own["within_task_rsa"] > 0.8 and own["cross_task_rsa"] < 0.5
+    # a constant per task: every unit task-modulated; the behaviour code's units mostly not
+    assert tonic["task_modulated_fraction"] > 0.9 and tonic["median_eta2"] > 0.5
+    assert shared["task_modulated_fraction"] < tonic["task_modulated_fraction"]
+    assert r.shares.shape == (K, 3) and np.allclose(r.shares.sum(0), 1)
+
+
+def test_a_recording_of_one_task_is_refused_and_the_cli_writes_figure_and_json(tmp_path, capsys):
+    ds, parts = stacked()
+    with pytest.raises(VnlError, match="holds one task"):
+        tasks_method.analyze(parts["run"], Options(states=K))
+    with pytest.raises(VnlError, match="2 episodes of every task"):
+        tasks_method.analyze(ds.isel(episode=[0, 4, 5, 8, 9]), Options(states=K))
+    path = tmp_path / "rec.nc"
+    ds.to_netcdf(path)
+    assert main(["analyze", str(path), "--method", "tasks", "--states", str(K)]) == 0
+    out = capsys.readouterr().out
+    assert "tasks: run, forage, touch" in out and "policy_hidden_1: task-modulated units" in out
+    doc = json.loads((tmp_path / "tasks.json").read_text())
+    assert doc["tasks"] == list(TASKS) and set(doc["layers"]) == {
+        "policy_hidden_0",
+        "policy_hidden_1",
+        "value_hidden_0",
+    }
+    assert doc["layers"]["policy_hidden_0"]["cross_task_rsa_by_pair"].keys() == {
+        "run|forage",
+        "run|touch",
+        "forage|touch",
+    }
+    assert (tmp_path / "tasks.png").stat().st_size > 10_000
+
+
+def test_the_embedding_of_several_tasks_is_coloured_by_task_and_says_which_task_owns_each_behaviour(monkeypatch):
+    from vnl.neuro import embedding
+
+    monkeypatch.setattr(embedding, "MAX_POINTS", 300)
+    ds, _ = stacked()
+    result = embedding.analyze(ds, Options(states=K))
+    assert result.color_by == "task" and result.task_names == list(TASKS)
+    for k, b in enumerate(result.behaviours()):  # each task's share of the behaviour's steps
+        mine = result.labels == k
+        assert b["task_share"] == pytest.approx({t: np.mean(result.color[mine] == i) for i, t in enumerate(TASKS)})
+    # the steps are those of every task's active steps, coloured by their episode's task
+    np.testing.assert_array_equal(result.color, stack.episode_tasks(ds)[result.episode])
+    assert np.bincount(result.color.astype(int)).tolist() == [E * 400, E * 300, E * 350]
+    other = embedding.analyze(ds, Options(states=K, color="gap_distance"))
+    assert other.task_names == [] and "task_share" not in other.behaviours()[0]
