@@ -114,6 +114,14 @@ def test_vnl_record_records_every_task_into_one_recording_or_the_one_named(refer
     assert main(["record", str(reference), "--episodes", "2", "--out", str(reference / "rec.nwb")]) == 2
     assert "an NWB file holds one task" in capsys.readouterr().err
     assert not (reference / "rec.nwb").exists()
+    # the viewer draws one world: a task's own recording or the run with the task named
+    assert main(["view", str(out), "--out", str(reference / "all.rrd")]) == 2
+    assert "view one task" in capsys.readouterr().err and not (reference / "all.rrd").exists()
+    assert main(["view", str(reference), "--out", str(reference / "v.rrd"), "--steps", "5", "--no-camera"]) == 2
+    assert "--set env_config.task=" in capsys.readouterr().err
+    args = ["view", str(reference), "--set", "env_config.task=test_plane", "--steps", "5", "--no-camera"]
+    assert main([*args, "--out", str(reference / "plane.rrd")]) == 0
+    assert main(["view", str(one), "--out", str(reference / "plane_rec.rrd"), "--no-camera"]) == 0
 
 
 @pytest.mark.slow

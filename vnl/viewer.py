@@ -384,9 +384,15 @@ def recording_env(ds: Any, recording: str | Path | None = None) -> Any:
     checkpoint is loaded). `recording`: the file it was read from (finds the run of an older
     recording that stored its run directory relative to where it was recorded)."""
     from vnl.policy import read_config
+    from vnl.recording import stack
     from vnl.train.config_changes import task_variant
     from vnl.train.worlds import trained_config
 
+    if stack.tasks(ds):  # its variables of the arenas' bodies were left out (`dropped`)
+        raise VnlError(
+            f"the recording holds several tasks ({', '.join(stack.tasks(ds))}) and not their worlds' bodies; "
+            "view one task: `vnl view RUN --set env_config.task=NAME`, or a recording made with that --set"
+        )
     run_dir = model.recorded_run(ds, recording)
     config = trained_config(read_config(run_dir), run_dir, int(ds.attrs.get("checkpoint_step", 0)))
     try:

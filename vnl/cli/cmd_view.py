@@ -28,6 +28,7 @@ def add(sub: Any) -> None:
     p.add_argument("--no-camera", action="store_true", help="leave out the egocentric camera's images")
     p.add_argument("--out", help=".rrd path (default <run_dir>/view.rrd or the recording's name with .rrd)")
     p.add_argument("--open", choices=["desktop", "web"], help="open it in Rerun's desktop viewer or a browser")
+    options.task_variant_flag(p)
     options.cache_flags(p)
 
 
@@ -37,10 +38,13 @@ def check(args: argparse.Namespace) -> None:
         checks.run_dir(args.source)
         if args.episode:
             raise VnlError("--episode picks an episode of a recording; a run directory is recorded for one episode")
+        checks.task_variants(args.set)
     else:
         checks.input_file(args.source, "recording")
         if args.step is not None:
             raise VnlError("--step chooses a checkpoint to record; a recording was given")
+        if args.set:
+            raise VnlError("--set chooses the task variant to record; a recording was given (it holds its own)")
     checks.output(args.out or default_out(args), (".rrd",), inputs=[args.source], given=bool(args.out))
     if not source.is_dir():  # by its content: an NWB file, another HDF5 file, ...
         checks.recording(args.source, "RUN_DIR|RECORDING", RUN_OR_RECORDING, NETCDF_ONLY)
@@ -61,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
         ds = recording.read(source, RUN_OR_RECORDING, NETCDF_ONLY)
         env = viewer.recording_env(ds, source)
     else:
-        run = load_run(source, step=checks.chosen_step(source, args.step))
+        run = load_run(source, step=checks.chosen_step(source, args.step), env_set=args.set)
         steps = args.steps or run.config.episode_length()
         print(f"[vnl] recording 1 episode of {steps} steps of {run.run_dir} (step {run.step:,}) ...")
         ds, env = record.record(run, 1, steps, args.seed), run.env
