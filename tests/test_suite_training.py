@@ -75,6 +75,30 @@ def test_a_suite_resumes_bit_exact_through_a_compact_checkpoint(reference, tmp_p
 
 @pytest.mark.slow
 @pytest.mark.xdist_group("suite")
+def test_a_checkpoint_keeps_of_each_member_what_it_reads_and_resumes_after_the_reads_change(
+    reference, tmp_path, monkeypatch
+):
+    """A member whose reads are unknown (None) keeps its whole physics state; the other stays
+    compact. Resumed once both are known (a checkpoint holding more than the reads: the union of
+    reads suites kept before 2026-11-29), the run goes on bit for bit."""
+    import tiny_env
+
+    run = tmp_path / "run"
+    with monkeypatch.context() as m:
+        m.setattr(tiny_env.PlaneMass, "previous_state_reads", None)
+        trainer.train(config(ppo={"num_timesteps": K, "num_evals": 2}), run, say=quiet)
+        held = sum(v.nbytes for k, v in checkpoint.load_train_state(run)[1].items() if k.startswith(".env"))
+        assert 16 * rundir.env_state_bytes(config().make_env()) == held  # the estimate, per member
+    _, arrays, _ = checkpoint.load_train_state(run)
+    point = {k.split(".data.")[-1].removeprefix("_impl.").split(".")[0] for k in arrays if "['test_point'].data." in k}
+    plane = {k.split(".data.")[-1].removeprefix("_impl.").split(".")[0] for k in arrays if "['test_plane'].data." in k}
+    assert point == KEPT["c"] and plane > KEPT["c"]
+    trainer.resume(run, flags={"ppo": {"num_timesteps": 2 * K}}, say=quiet)
+    assert_same_run(run, reference)
+
+
+@pytest.mark.slow
+@pytest.mark.xdist_group("suite")
 def test_vnl_eval_evaluates_every_task_or_the_one_named(reference, capsys):
     out = reference / "eval_all.json"
     assert main(["eval", str(reference), "--episodes", "2", "--out", str(out)]) == 0

@@ -271,10 +271,11 @@ class SuiteEnv:
         return self
 
     @property
-    def previous_state_reads(self) -> tuple[str, ...] | None:
-        """Every member's (a checkpoint keeps what any of them reads); None if one's is unknown."""
-        reads = [env.previous_state_reads for env in self.members.values()]
-        return None if any(r is None for r in reads) else tuple(sorted(set().union(*reads)))
+    def previous_state_reads(self) -> dict[str, tuple[str, ...] | None]:
+        """Each member's, by the path of its state in the training state (`SuiteWrapper`:
+        `.info['tasks'][name]`): a checkpoint keeps of each member what that member reads
+        (`physics.derived_paths`); a member's None (unknown) keeps its state whole."""
+        return {f".info['tasks'][{name!r}]": env.previous_state_reads for name, env in self.members.items()}
 
     def episode_lengths(self, episode_length: int | None = None) -> dict[str, int]:
         """{task trained on: its episode length}: `episode_length` for all when given (a training

@@ -13,6 +13,7 @@ positions, frames, centres of mass and velocities of the returned data those of 
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any
 
 import jax
@@ -50,26 +51,35 @@ def cinert(data: Any) -> jax.Array:
     return data.cinert if isinstance(data, CData) else mjx_physics.cinert(data)
 
 
-def derived_paths(tree: Any, reads: tuple[str, ...] | None) -> list[str]:
+Reads = tuple[str, ...] | None
+"""What a task reads of a previous state (`Env.previous_state_reads`): field names, or None (unknown)."""
+
+
+def derived_paths(tree: Any, reads: Reads | Mapping[str, Reads]) -> list[str]:
     """The paths (`jax.tree_util.keystr`) of the leaves of every physics state in `tree` that a
     checkpoint leaves out, e.g. `.info['first_data']._impl.efc_J`: all but the integration state
     (MJX: `mjx_physics.ALWAYS_KEPT`; MuJoCo C: `c_physics.STATE`) and the fields the task `reads`
     of a previous state (`Env.previous_state_reads`, names as `data.<name>` gives them: `xpos`,
     `contact`, `cinert`); none when `reads` is None (unknown), nor of MJX's Warp implementation
-    (not measured): docs/experiments/compact-checkpoints.md."""
-    if reads is None:
-        return []
+    (not measured): docs/experiments/compact-checkpoints.md. `reads` may map path prefixes to
+    reads (a suite's members, each under its own path); a state under no prefix keeps everything."""
     found = []
     nodes = jax.tree_util.tree_flatten_with_path(tree, is_leaf=lambda x: isinstance(x, Data))[0]
     for prefix, node in nodes:
+        where = jax.tree_util.keystr(prefix)
+        mine = reads if not isinstance(reads, Mapping) else next(
+            (r for p, r in reads.items() if where.startswith(p)), None
+        )  # fmt: skip
+        if mine is None:
+            continue
         if isinstance(node, CData):
-            kept = set(STATE) | set(reads)
+            kept = set(STATE) | set(mine)
         elif isinstance(node, mjx.Data) and isinstance(node._impl, mjx.DataJAX):
-            kept = set(mjx_physics.ALWAYS_KEPT) | set(reads)
+            kept = set(mjx_physics.ALWAYS_KEPT) | set(mine)
         else:
             continue
         for path, _ in jax.tree_util.tree_flatten_with_path(node)[0]:
             name = jax.tree_util.keystr(path)  # `.xpos`, `._impl.contact.dist`
             if name.removeprefix(".").removeprefix("_impl.").split(".")[0] not in kept:
-                found.append(jax.tree_util.keystr(prefix) + name)
+                found.append(where + name)
     return found

@@ -61,10 +61,10 @@ def from_arrays(loop: Any, arrays: dict[str, np.ndarray]) -> Any:
             k: np.broadcast_to(v[:1], (v.shape[0] * loop.process_count,) + v.shape[1:]) if k.startswith(".env") else v
             for k, v in flat.items()
         }
-    left_out = physics.derived_paths(template.env, loop.task_env.previous_state_reads)
-    if not any(".env" + p in arrays for p in left_out):  # compact: the next step recomputes the rest
-        recomputed = [".env" + p for p in physics.derived_paths(template.env, ())]
-        arrays = {**{k: flat[k] for k in recomputed if k not in arrays}, **arrays}  # a fresh reset's values
+    # A compact checkpoint: the next step recomputes what it left out; those get a fresh reset's
+    # values. (A suite's checkpoint from before 2026-11-29 kept every member's union of reads.)
+    recomputed = [".env" + p for p in physics.derived_paths(template.env, ())]
+    arrays = {**{k: flat[k] for k in recomputed if k not in arrays}, **arrays}
     missing = sorted(set(flat) - set(arrays))
     extra = sorted(set(arrays) - set(flat))
     bad = [k for k in flat if k in arrays and (arrays[k].shape, arrays[k].dtype) != (flat[k].shape, flat[k].dtype)]
