@@ -190,7 +190,17 @@ def test_the_default_video_camera_frames_the_animal(name, impl):
     )
 
 
-@pytest.mark.parametrize("name,impl", by_env(NAMES, BOTH))
+# A world MJX steps as it steps another's is rolled out on MJX once. rodent_two_touch's physics is
+# rodent_run's, the rat on a floor (the orb is a mocap body outside the physics:
+# test_mjx_rollouts_left_out_step_the_same_world checks it), and its task code is the same on both
+# physics (its C rollout runs it). Its MJX rollout took 222 s on CI (2026-11-28), where the suite
+# came within 4 minutes of its limit. (rodent_imitate's is not the same: 8 solver iterations.)
+MJX_SAME_AS = {"rodent_two_touch": "rodent_run"}
+
+
+@pytest.mark.parametrize(
+    "name,impl", [p for p in by_env(NAMES, BOTH) if not (p.values[1] == "jax" and p.values[0] in MJX_SAME_AS)]
+)
 def test_reset_step_shapes_and_finiteness(name, impl):
     e = env(name, impl)
     b = batch_size(name)
@@ -213,6 +223,45 @@ def test_reset_step_shapes_and_finiteness(name, impl):
     assert terms
     np.testing.assert_allclose(sum(traj.metrics[k] for k in terms), traj.reward, rtol=1e-5, atol=1e-5)
     assert sum(w for _, w in e.observation_layout()) == e.observation_size
+
+
+@pytest.mark.parametrize("name", sorted(MJX_SAME_AS))
+def test_mjx_rollouts_left_out_step_the_same_world(name):
+    """What MJX collides and integrates is the same in `name`'s world as in the world whose MJX
+    rollout stands for it: the same bodies that are not mocap, joints, actuators and colliding
+    geoms (type, size, pose, friction), the same options."""
+    import mujoco
+
+    a, b = env(name, "c").mj_model, env(MJX_SAME_AS[name], "c").mj_model
+
+    def size(m, g):  # a plane collides as an infinite plane: its size is how it is drawn
+        return () if m.geom_type[g] == mujoco.mjtGeom.mjGEOM_PLANE else tuple(np.round(m.geom_size[g], 6))
+
+    def world(m):
+        bodies = [i for i in range(m.nbody) if m.body_mocapid[i] < 0]
+        geoms = [g for g in range(m.ngeom) if m.geom_contype[g] or m.geom_conaffinity[g]]
+        geoms = [g for g in geoms if m.body_mocapid[m.geom_bodyid[g]] < 0]
+        return (
+            [(m.body(i).name, *m.body_mass[i : i + 1]) for i in bodies],
+            [m.joint(j).name for j in range(m.njnt)],
+            [m.actuator(u).name for u in range(m.nu)],
+            [
+                (
+                    m.geom(g).name,
+                    int(m.geom_type[g]),
+                    *size(m, g),
+                    *np.round(m.geom_pos[g], 6),
+                    *np.round(m.geom_friction[g], 6),
+                )
+                for g in geoms
+            ],  # fmt: skip
+            (m.opt.timestep, m.opt.iterations, m.opt.ls_iterations, int(m.opt.solver), int(m.opt.cone)),
+        )
+
+    for mine, theirs, what in zip(
+        world(a), world(b), ("bodies", "joints", "actuators", "geoms", "options"), strict=True
+    ):
+        assert mine == theirs, f"{name}'s {what} differ from {MJX_SAME_AS[name]}'s: roll it out on MJX again"
 
 
 @pytest.mark.slow
