@@ -68,6 +68,9 @@ def test_suite_config_defaults_validation_and_compute_fields_copied():
         ({"tasks": []}, "at least one"),
         ({"shares": [1]}, "one positive integer per entry of tasks"),
         ({"tasks": ["test_point", "test_plane"], "shares": [1, 0]}, "positive"),
+        ({"reward_scales": [1.0]}, "reward_scales: one finite number"),
+        ({"reward_scales": [0.0, 0.0]}, "not all 0"),
+        ({"reward_scales": [1.0, -1.0]}, ">= 0"),
     ]:
         with pytest.raises(VnlError, match=words):
             vnl.typed_config.override(config, bad)
@@ -134,6 +137,22 @@ def test_suite_wrapper_steps_each_member_as_its_own_wrapped_env():
 class _OtherStep(tiny_env.PointMass):
     def __init__(self, config):
         Env.__init__(self, config, tiny_env.mujoco.MjModel.from_xml_string(tiny_env.XML), n_substeps=3, impl="c")
+
+
+def test_reward_scales_multiply_what_training_learns_from_not_the_tasks_own_reward():
+    factory, config = _tiny(reward_scales=[2.0, 0.25])
+    env, plain = factory(config), factory(_tiny()[1])
+    keys = jax.random.split(jax.random.PRNGKey(0), 4)
+    actions = jax.random.uniform(jax.random.PRNGKey(1), (12, 4, 1), minval=-1, maxval=1)
+    scaled, same = suite.SuiteWrapper(env), suite.SuiteWrapper(plain)
+    s, p = scaled.reset(keys), same.reset(keys)
+    for t in range(12):
+        s, p = jax.jit(scaled.step)(s, actions[t]), jax.jit(same.step)(p, actions[t])
+        np.testing.assert_allclose(s.reward, p.reward * np.array([2.0, 2.0, 0.25, 0.25]), rtol=1e-6)
+        np.testing.assert_array_equal(  # an episode's return, as evaluations and progress report it: unscaled
+            s.info["episode_metrics"]["sum_reward"], p.info["episode_metrics"]["sum_reward"]
+        )
+    assert np.abs(np.asarray(p.reward)).max() > 0
 
 
 def test_members_must_share_control_step_and_actuators_and_a_suite_has_no_single_model():

@@ -80,7 +80,7 @@ def test_a_checkpoint_keeps_of_each_member_what_it_reads_and_resumes_after_the_r
 ):
     """A member whose reads are unknown (None) keeps its whole physics state; the other stays
     compact. Resumed once both are known (a checkpoint holding more than the reads: the union of
-    reads suites kept before 2026-11-29), the run goes on bit for bit."""
+    reads suites kept before 2026-11-28 evening), the run goes on bit for bit."""
     import tiny_env
 
     run = tmp_path / "run"

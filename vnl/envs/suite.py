@@ -22,6 +22,7 @@ use), else the factory builds a `SuiteEnv`.
 from __future__ import annotations
 
 import dataclasses
+import math
 import typing
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any, ClassVar
@@ -134,7 +135,8 @@ class SuiteConfig:
     """What every suite config has besides one field per member (that member's config):
 
     - `tasks`: the members trained on (default all of them); `shares`: their relative numbers of
-      envs in the batch (None: equal);
+      envs in the batch (None: equal); `reward_scales`: what each task's reward is multiplied by
+      in training (None: 1 each; evaluations report the task's own reward);
     - `task`: a member's name to build that member alone, observing the suite's layout (evaluating,
       recording, rendering one task); None: the suite;
     - `impl`, `threads`: the physics of every member (copied into their configs).
@@ -157,6 +159,14 @@ class SuiteConfig:
             raise VnlError(f"tasks/task: {bad}; this suite's members are: {', '.join(names)}")
         if self.shares is not None and (len(self.shares) != len(tasks) or min(self.shares) < 1):
             raise VnlError(f"shares: one positive integer per entry of tasks ({len(tasks)}), got {list(self.shares)}")
+        scales = self.reward_scales
+        if scales is not None and (
+            len(scales) != len(tasks) or not all(math.isfinite(x) and x >= 0 for x in scales) or max(scales) <= 0
+        ):
+            raise VnlError(
+                f"reward_scales: one finite number >= 0 per entry of tasks ({len(tasks)}), not all 0; "
+                f"got {list(scales)}"
+            )
 
     @property
     def episode_length(self) -> int:
@@ -186,6 +196,7 @@ def define(
     fields += [
         ("tasks", tuple[str, ...], dataclasses.field(default=tuple(members))),
         ("shares", tuple[int, ...] | None, dataclasses.field(default=shares)),
+        ("reward_scales", tuple[float, ...] | None, dataclasses.field(default=None)),
         ("task", str | None, dataclasses.field(default=None)),
     ]
     hints = typing.get_type_hints(type(first))  # the members' modules may defer annotations
@@ -234,6 +245,8 @@ class SuiteEnv:
         self.members = members
         self.tasks = tuple(config.tasks)
         self.shares = tuple(config.shares) if config.shares is not None else (1,) * len(self.tasks)
+        scales = getattr(config, "reward_scales", None)
+        self.reward_scales = tuple(float(x) for x in scales) if scales is not None else (1.0,) * len(self.tasks)
         self._layout, keys = union_layout({name: env.observation_layout() for name, env in members.items()})
         self.views = {
             name: TaskView(env, name, i, self._layout, keys[name]) for i, (name, env) in enumerate(members.items())
@@ -332,10 +345,11 @@ class SuiteWrapper:
         tasks = state.info["tasks"]
         return self._combine({name: env.step(tasks[name], action[slices[name]]) for name, env in self.envs.items()})
 
-    @staticmethod
-    def _combine(states: dict[str, State]) -> State:
+    def _combine(self, states: dict[str, State]) -> State:
         def cat(get: Callable[[State], jax.Array]) -> jax.Array:
             return jp.concatenate([get(s) for s in states.values()])
+
+        scales = dict(zip(self.suite.tasks, self.suite.reward_scales, strict=True))
 
         info = {
             "tasks": states,
@@ -345,7 +359,8 @@ class SuiteWrapper:
         return State(
             data={},
             obs=cat(lambda s: s.obs),
-            reward=cat(lambda s: s.reward),
+            # what PPO learns from: each task's reward times its scale (the episode metrics keep the task's own)
+            reward=jp.concatenate([s.reward * scales[name] for name, s in states.items()]),
             done=cat(lambda s: s.done),
             metrics={},
             info=info,

@@ -62,7 +62,7 @@ def from_arrays(loop: Any, arrays: dict[str, np.ndarray]) -> Any:
             for k, v in flat.items()
         }
     # A compact checkpoint: the next step recomputes what it left out; those get a fresh reset's
-    # values. (A suite's checkpoint from before 2026-11-29 kept every member's union of reads.)
+    # values. (A suite's checkpoint written before commit ab939c4 (2026-11-28) kept every member's union of reads.)
     recomputed = [".env" + p for p in physics.derived_paths(template.env, ())]
     arrays = {**{k: flat[k] for k in recomputed if k not in arrays}, **arrays}
     missing = sorted(set(flat) - set(arrays))
