@@ -228,8 +228,9 @@ def test_reset_step_shapes_and_finiteness(name, impl):
 @pytest.mark.parametrize("name", sorted(MJX_SAME_AS))
 def test_mjx_rollouts_left_out_step_the_same_world(name):
     """What MJX collides and integrates is the same in `name`'s world as in the world whose MJX
-    rollout stands for it: the same bodies that are not mocap, joints, actuators and colliding
-    geoms (type, size, pose, friction), the same options."""
+    rollout stands for it: the same bodies that are not mocap (mass, inertia, pose), joints (range,
+    stiffness, damping), actuators (gains), colliding geoms (type, size, pose, friction, margin,
+    solref, condim), the same options; and no geom of a mocap body collides."""
     import mujoco
 
     a, b = env(name, "c").mj_model, env(MJX_SAME_AS[name], "c").mj_model
@@ -240,11 +241,19 @@ def test_mjx_rollouts_left_out_step_the_same_world(name):
     def world(m):
         bodies = [i for i in range(m.nbody) if m.body_mocapid[i] < 0]
         geoms = [g for g in range(m.ngeom) if m.geom_contype[g] or m.geom_conaffinity[g]]
-        geoms = [g for g in geoms if m.body_mocapid[m.geom_bodyid[g]] < 0]
+        mocap = [g for g in geoms if m.body_mocapid[m.geom_bodyid[g]] >= 0]
+        assert not mocap, f"{name}: mocap bodies' geoms collide: {[m.geom(g).name for g in mocap]}"
+        r = lambda v: tuple(np.round(np.asarray(v, float).ravel(), 6))  # noqa: E731
         return (
-            [(m.body(i).name, *m.body_mass[i : i + 1]) for i in bodies],
-            [m.joint(j).name for j in range(m.njnt)],
-            [m.actuator(u).name for u in range(m.nu)],
+            [
+                (m.body(i).name, r(m.body_mass[i]), r(m.body_inertia[i]), r(m.body_pos[i]), r(m.body_quat[i]))
+                for i in bodies
+            ],  # fmt: skip
+            [
+                (m.joint(j).name, r(m.jnt_range[j]), r(m.jnt_stiffness[j]), r(m.dof_damping[m.jnt_dofadr[j]]))
+                for j in range(m.njnt)
+            ],  # fmt: skip
+            [(m.actuator(u).name, r(m.actuator_gainprm[u]), r(m.actuator_biasprm[u])) for u in range(m.nu)],
             [
                 (
                     m.geom(g).name,
@@ -252,6 +261,9 @@ def test_mjx_rollouts_left_out_step_the_same_world(name):
                     *size(m, g),
                     *np.round(m.geom_pos[g], 6),
                     *np.round(m.geom_friction[g], 6),
+                    r(m.geom_margin[g]),
+                    r(m.geom_solref[g]),
+                    int(m.geom_condim[g]),
                 )
                 for g in geoms
             ],  # fmt: skip

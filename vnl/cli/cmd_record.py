@@ -62,6 +62,11 @@ def check(args: argparse.Namespace) -> None:
         checks.recording(
             args.source, "--from", kinds=formats.NETCDF_ONLY
         )  # by its content: already NWB, another HDF5 file, ...
+        if "tasks" in formats.attributes(args.source):  # vnl.recording.stack: several worlds, no bodies
+            raise VnlError(
+                f"an NWB file holds one task; {args.source} holds several: record one with "
+                "`vnl record RUN --set env_config.task=NAME --format nwb`"
+            )
         checks.output(args.out or default_out(args), (".nwb",), [args.source], given=bool(args.out))
         return
     if not args.run_dir:

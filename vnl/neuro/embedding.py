@@ -17,8 +17,9 @@ features with each column permuted over time independently (each keeps its value
 co-occurrence is broken); the silhouette score (scikit-learn) of each is reported. The JSON gives
 each behaviour's share of the steps, its mean dwell (s), and the mean of `--color` (default
 forward speed) in it. A recording of several tasks (`vnl.recording.stack`) is coloured by task by
-default, and each behaviour's JSON entry gives each task's share of its steps: which behaviours
-the tasks share and which one task owns.
+default, and each behaviour's JSON entry gives each task's share of its steps (`task_share`) and
+the share of each task's steps it takes (`share_of_task`): which behaviours the tasks share and
+which one task owns.
 """
 
 from __future__ import annotations
@@ -88,12 +89,18 @@ class Embedding:
                     "behaviour": k,
                     "share": float(mine.mean()),
                     "mean_dwell_s": float(np.mean(runs) * self.dt) if runs else 0.0,
-                    f"mean_{self.color_by}": float(np.nanmean(self.color[mine])) if mine.any() else None,
                 }
             )
-            if self.task_names:  # a recording of several tasks: each task's share of the behaviour's steps
-                out[-1]["task_share"] = {t: float(np.mean(self.color[mine] == i)) if mine.any() else 0.0
-                                         for i, t in enumerate(self.task_names)}  # fmt: skip
+            if not self.task_names:
+                out[-1][f"mean_{self.color_by}"] = float(np.nanmean(self.color[mine])) if mine.any() else None
+                continue
+            # a recording of several tasks: each task's share of the behaviour's steps, and the
+            # share of each task's own steps in it (tasks recorded for longer have more steps)
+            task_of = [self.color == i for i in range(len(self.task_names))]
+            out[-1]["task_share"] = {t: float(np.mean(self.color[mine] == i)) if mine.any() else 0.0
+                                     for i, t in enumerate(self.task_names)}  # fmt: skip
+            out[-1]["share_of_task"] = {t: float(np.mean(mine[task_of[i]])) if task_of[i].any() else 0.0
+                                        for i, t in enumerate(self.task_names)}  # fmt: skip
         return out
 
     def to_json(self) -> dict[str, Any]:

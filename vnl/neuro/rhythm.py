@@ -33,7 +33,7 @@ from vnl.errors import VnlError
 from vnl.neuro import crossval as cv
 from vnl.neuro import encoding
 from vnl.neuro.registry import Options
-from vnl.recording import behaviour, model
+from vnl.recording import behaviour, model, stack
 
 BAND = 0.5
 """Half-width (Hz) of the band around the gait frequency."""
@@ -172,6 +172,11 @@ def spectral_index(freqs: np.ndarray, psd: np.ndarray, f0: float, fs: float) -> 
 
 def analyze(ds: Any, options: Options) -> Rhythm:
     """The rhythm of `options.layer` (default: every layer) against the gait of the recording."""
+    if stack.tasks(ds):
+        raise VnlError(
+            "the recording holds several tasks, each with its own gait reference: analyse one task's "
+            "recording (`vnl record RUN --set env_config.task=NAME`)"
+        )
     layers = [options.layer] if options.layer else model.layers(ds)
     for layer in layers:
         model.check_layer(ds, layer)

@@ -4,29 +4,39 @@
 Merel et al. 2020 asked of their rodent's network which layers represent behaviour the same way
 whatever the task and which depend on the task. Two measures per layer, each against a control:
 
-- **Task variance.** Each unit's share of variance (over the active steps) explained by the
-  episode's task, eta² = between-task variance / total variance. The control permutes the task
-  labels among the episodes (the episode is the unit that was assigned a task) `CONTROL_REPEATS`
-  times; a unit is *task-modulated* when its eta² exceeds the 95th percentile of the layer's
-  control eta². A suite's network also sees a one-hot of the task in its observation, so an input
-  layer is expected to carry the task; the question is how much of it survives into each layer.
-- **Cross-task RSA.** The steps are clustered into `--states` behaviours (default 10) pooled over
-  the tasks: k-means on the embedding's time-frequency features of the pose
-  (`vnl.neuro.embedding.wavelet_features`), so a behaviour is the same movement in every task. In
-  each task the layer's mean activity per behaviour gives a representational dissimilarity
-  matrix (correlation distance) over the behaviours that task shows (at least `MIN_STEPS` steps);
-  two tasks' matrices over the behaviours both show are compared by Spearman correlation. The
-  layer's *cross-task RSA* is the mean over task pairs. Its noise ceiling, *within-task RSA*, is
-  the same comparison between the two halves of each task's episodes; a layer whose cross-task
-  RSA reaches its within-task RSA represents behaviour the same way in every task (task-invariant).
-  The control shifts the activity circularly in time within each episode against the behaviour
-  labels (each keeps its own dynamics, their alignment is broken), `CONTROL_REPEATS` times.
+The steps are first clustered into `--states` behaviours (10 by default on the command line)
+pooled over the tasks: k-means on the embedding's time-frequency features of the pose
+(`vnl.neuro.embedding.wavelet_features`), so a behaviour is the same movement in every task.
+
+- **Task variance.** Each unit's share of variance explained by the episode's task once the
+  behaviour is accounted for: eta² of the task on the residual of a least-squares fit of the
+  activity from the behaviour (its one-hot label and its time-frequency features, pooled over
+  tasks). Without that step a unit that codes only behaviour would count as task modulated
+  whenever the tasks show the behaviours in other proportions; with it, task variance that the
+  behaviour also explains (a constant per task, where each task has its own behaviours) counts as
+  behaviour's. The control permutes the
+  task labels among the episodes (the episode is the unit that was assigned a task)
+  `CONTROL_REPEATS` times, and needs at least `MIN_LABELINGS` distinct labelings; a unit is
+  *task-modulated* when its eta² exceeds the 95th percentile of the layer's control eta². A
+  suite's network also sees a one-hot of the task in its observation, so an input layer is
+  expected to carry the task; the question is how much of it survives into each layer.
+- **Cross-task RSA.** In each task the layer's mean activity per behaviour gives a
+  representational dissimilarity matrix (correlation distance) over the behaviours that task shows
+  (at least `MIN_STEPS` steps), two matrices are compared by Spearman correlation over the
+  behaviours both show. Every matrix is made of half a task's episodes, so that the *within-task
+  RSA* (one half of a task against its other half: the noise ceiling) and the *cross-task RSA*
+  (a half of one task against a half of another, the four pairings averaged, then the mean over
+  task pairs) rest on as much data. A layer whose cross-task RSA reaches its within-task RSA
+  represents behaviour the same way in every task (task-invariant). The control shifts the
+  activity circularly in time within each episode against the behaviour labels (each keeps its
+  own dynamics, their alignment is broken), `CONTROL_REPEATS` times.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import itertools
+import math
 from pathlib import Path
 from typing import Any
 
@@ -37,9 +47,11 @@ from vnl.errors import VnlError
 from vnl.neuro.registry import Options
 from vnl.recording import model, stack
 
-DEFAULT_BEHAVIOURS = 10
 MIN_STEPS = 10
 CONTROL_REPEATS = 20
+MIN_LABELINGS = 20
+"""The fewest distinct ways of assigning the tasks to the episodes (episodes! / prod(per task!))
+for the permutation control: with fewer, the true labelling is a large share of the draws."""
 
 
 @dataclasses.dataclass
@@ -67,7 +79,8 @@ class TaskResult:
             "units": int(len(self.eta2[layer])),
             "median_eta2": float(np.nanmedian(self.eta2[layer])),
             "control_eta2_95": self.threshold(layer),
-            "task_modulated_fraction": float(np.mean(self.eta2[layer] > self.threshold(layer))),
+            "task_modulated_fraction": _fraction(self.eta2[layer], self.threshold(layer)),
+            "units_with_variance": int(np.isfinite(self.eta2[layer]).sum()),
             "cross_task_rsa": _mean(pairs),
             "within_task_rsa": _mean(self.within_rsa[layer]),
             "control_cross_task_rsa_95": float(np.nanpercentile(self.control_cross[layer], 95))
@@ -85,13 +98,20 @@ class TaskResult:
             "tasks": self.tasks,
             "behaviours": self.behaviours,
             "behaviour_share_per_task": {t: self.shares[:, i].tolist() for i, t in enumerate(self.tasks)},
-            "task_variance": "eta² of each unit on the episode's task; control: task labels permuted among episodes",
-            "rsa": "Spearman of per-behaviour RDMs (correlation distance) between tasks; "
-            "within: between halves of a task's episodes; control: activity shifted in time against the labels",
+            "task_variance": "eta² of each unit on the episode's task, after a least-squares fit from the behaviour; "
+            "control: task labels permuted among episodes",
+            "rsa": "Spearman of per-behaviour RDMs (correlation distance) of halves of the tasks' episodes: across "
+            "tasks, and within (a task's two halves); control: activity shifted in time against the labels",
             "control_repeats": CONTROL_REPEATS,
             "layers": {layer: self.summary(layer) for layer in self.eta2},
             "recording": self.source,
         }
+
+
+def _fraction(eta2: np.ndarray, threshold: float) -> float:
+    """The share of the units with any variance whose eta² exceeds `threshold`."""
+    ok = np.isfinite(eta2)
+    return float(np.mean(eta2[ok] > threshold)) if ok.any() else float("nan")
 
 
 def _mean(v: np.ndarray) -> float | None:
@@ -140,22 +160,29 @@ def _compare(ma: np.ndarray, mb: np.ndarray) -> float:
     return rdm_similarity(ma[both], mb[both])
 
 
-def cross_task(x: np.ndarray, labels: np.ndarray, task: np.ndarray, episode: np.ndarray, k: int) -> tuple:
-    """(cross (tasks, tasks), within (tasks,)) RSA of activity x (n, units) with behaviour
-    `labels`, `task` and `episode` (n,) per step."""
-    n_tasks = int(task.max()) + 1
-    means = [_behaviour_means(x, labels, task == t, k) for t in range(n_tasks)]
-    cross = np.full((n_tasks, n_tasks), np.nan)
-    for a, b in itertools.combinations(range(n_tasks), 2):
-        cross[a, b] = cross[b, a] = _compare(means[a], means[b])
-    within = np.full(n_tasks, np.nan)
+def _halves(task: np.ndarray, episode: np.ndarray, n_tasks: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per task, the steps (n,) bool of the first and of the second half of its episodes."""
+    out = []
     for t in range(n_tasks):
         eps = np.unique(episode[task == t])
-        if len(eps) >= 2:
-            half = np.isin(episode, eps[: len(eps) // 2])
-            within[t] = _compare(
-                _behaviour_means(x, labels, (task == t) & half, k), _behaviour_means(x, labels, (task == t) & ~half, k)
-            )
+        first = np.isin(episode, eps[: len(eps) // 2])
+        out.append(((task == t) & first, (task == t) & ~first))
+    return out
+
+
+def cross_task(
+    x: np.ndarray, labels: np.ndarray, halves: list[tuple[np.ndarray, np.ndarray]], k: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """(cross (tasks, tasks), within (tasks,)) RSA of activity x (n, units) with behaviour
+    `labels` (n,), each task's steps split in `halves` (`_halves`): within, a task's two halves;
+    across, the four pairings of two tasks' halves, averaged."""
+    n_tasks = len(halves)
+    means = [[_behaviour_means(x, labels, h, k) for h in pair] for pair in halves]
+    within = np.array([_compare(a, b) for a, b in means])
+    cross = np.full((n_tasks, n_tasks), np.nan)
+    for a, b in itertools.combinations(range(n_tasks), 2):
+        scores = [_compare(ma, mb) for ma in means[a] for mb in means[b]]
+        cross[a, b] = cross[b, a] = np.nanmean(scores) if np.isfinite(scores).any() else np.nan
     return cross, within
 
 
@@ -170,8 +197,9 @@ def _shifted(x: np.ndarray, episode: np.ndarray, rng: np.random.Generator) -> np
     return out
 
 
-def _inputs(ds: Any, options: Options) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
-    """(tasks, behaviour labels, task, episode, time index) of the analysed steps, and k."""
+def _inputs(ds: Any, options: Options) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray, np.ndarray, int, Any]:
+    """(tasks, behaviour labels, task, episode, time index) of the analysed steps, k, and the
+    steps' time-frequency features (n, f)."""
     from sklearn.cluster import KMeans
 
     from vnl.neuro import embedding
@@ -183,9 +211,13 @@ def _inputs(ds: Any, options: Options) -> tuple[list[str], np.ndarray, np.ndarra
             "without --set env_config.task) for --method tasks"
         )
     per_task = np.bincount(stack.episode_tasks(ds), minlength=len(names))
-    if per_task.min() < 2:
-        raise VnlError(f"--method tasks needs 2 episodes of every task or more (has {per_task.tolist()}); "
-                       "record with --episodes 2 or more")  # fmt: skip
+    labelings = math.factorial(int(per_task.sum())) // math.prod(math.factorial(int(n)) for n in per_task)
+    if per_task.min() < 2 or labelings < MIN_LABELINGS:
+        raise VnlError(
+            f"--method tasks needs 2 episodes of every task or more, and episodes enough for its control "
+            f"(episodes per task {per_task.tolist()}: {labelings} ways to assign the tasks, {MIN_LABELINGS} "
+            f"needed); record with more --episodes (2 tasks: 3 each)"
+        )
     features = list(options.features) if options.features else [n for n in embedding.FEATURES if n in ds]
     if not features:
         raise VnlError("the recording has no joint_angle or com_velocity; choose behaviour variables with --features")
@@ -194,12 +226,20 @@ def _inputs(ds: Any, options: Options) -> tuple[list[str], np.ndarray, np.ndarra
     k = options.states
     labels = KMeans(k, n_init=10, random_state=options.seed).fit_predict(amp)
     task = stack.episode_tasks(ds)[episode]
-    return names, labels, task, episode, time, k
+    usable = [len(np.unique(episode[task == t])) for t in range(len(names))]
+    if min(usable) < 2:
+        short = [n for n, u in zip(names, usable, strict=True) if u < 2]
+        raise VnlError(
+            f"{', '.join(short)}: fewer than 2 episodes with finite {', '.join(features)}; a feature recorded "
+            "in some tasks only (NaN in the others) cannot describe every task's behaviour"
+        )
+    return names, labels, task, episode, time, k, amp
 
 
 def analyze(ds: Any, options: Options) -> TaskResult:
     """Task variance and cross-task RSA of every layer (or `options.layer`) of a stacked recording."""
-    names, labels, task, episode, time, k = _inputs(ds, options)
+    names, labels, task, episode, time, k, amp = _inputs(ds, options)
+    behaviour = np.concatenate([np.eye(k)[labels], amp - amp.mean(0)], axis=1)
     layers = [options.layer] if options.layer else model.layers(ds)
     for layer in layers:
         model.check_layer(ds, layer)
@@ -209,12 +249,14 @@ def analyze(ds: Any, options: Options) -> TaskResult:
     result = TaskResult(names, {}, {}, {}, {}, {}, np.zeros((k, len(names))), k, model.description(ds))
     for t in range(len(names)):
         result.shares[:, t] = np.bincount(labels[task == t], minlength=k) / max(1, (task == t).sum())
+    halves = _halves(task, episode, len(names))
     for layer in layers:
         x = model.activity(ds, layer)[episode, time]
-        result.eta2[layer] = eta_squared(x, task)
-        result.control_eta2[layer] = np.stack([eta_squared(x, p[episode]) for p in perms])
-        result.cross_rsa[layer], result.within_rsa[layer] = cross_task(x, labels, task, episode, k)
-        shifted = [cross_task(_shifted(x, episode, rng), labels, task, episode, k)[0] for _ in range(CONTROL_REPEATS)]
+        residual = x - behaviour @ np.linalg.lstsq(behaviour, x, rcond=None)[0]
+        result.eta2[layer] = eta_squared(residual, task)
+        result.control_eta2[layer] = np.stack([eta_squared(residual, p[episode]) for p in perms])
+        result.cross_rsa[layer], result.within_rsa[layer] = cross_task(x, labels, halves, k)
+        shifted = [cross_task(_shifted(x, episode, rng), labels, halves, k)[0] for _ in range(CONTROL_REPEATS)]
         iu = np.triu_indices(len(names), 1)
         result.control_cross[layer] = np.array([np.nanmean(c[iu]) if np.isfinite(c[iu]).any() else np.nan
                                                 for c in shifted])  # fmt: skip

@@ -305,6 +305,11 @@ def write(
     from pynwb import NWBHDF5IO, TimeSeries
 
     check_output(path)
+    if "tasks" in ds.attrs:  # vnl.recording.stack: the worlds' bodies were left out
+        raise VnlError(
+            f"an NWB file holds one task; the recording holds several ({ds.attrs['tasks']}): record one with "
+            "`vnl record RUN --set env_config.task=NAME --format nwb`"
+        )
     episode, time, first = _steps(ds)
     if not len(episode):
         raise VnlError("the recording has no active steps to export")

@@ -80,45 +80,72 @@ def _kept(recordings: list[Any]) -> tuple[list[str], list[str]]:
     return kept, dropped
 
 
+def _check(names: list[str], parts: list[Any]) -> None:
+    """`VnlError` unless the recordings are one network's (the same layers) at one control step."""
+    layers = [model.layers(r) for r in parts]
+    for name, r, these in zip(names[1:], parts[1:], layers[1:], strict=True):
+        if these != layers[0] or any(parts[0][k].shape[-1] != r[k].shape[-1] for k in these):
+            raise VnlError(f"the recordings of {names[0]} and {name} hold different layers: not one network's")
+        dt = [float(x.attrs.get("control_dt", np.nan)) for x in (parts[0], r)]
+        if not abs(dt[0] - dt[1]) <= 1e-9:
+            raise VnlError(f"the recordings of {names[0]} and {name} have other control steps ({dt[0]} and {dt[1]} s)")
+
+
+def _listed(text: Any) -> Any:
+    """A recording's `env_set` (JSON text of a list) as the list; the text itself if it is not JSON."""
+    try:
+        return json.loads(str(text))
+    except ValueError:
+        return str(text)
+
+
+def _padded(r: Any, kept: list[str], longest: int, index: int) -> Any:
+    """Recording `r` with the `kept` variables (NaN where it has none, per step), padded in time
+    to `longest` steps by position, and its `task` index."""
+    r = r[[k for k in kept if k in r.data_vars]]
+    for k in kept:
+        if k not in r.data_vars:
+            r[k] = (model.STEP_DIMS, np.full((r.sizes["episode"], r.sizes["time"]), np.nan))
+    # Integer and boolean step variables (active, done, event counts) become floats with the NaN padding.
+    r = r.drop_vars("time").pad(time=(0, longest - r.sizes["time"]))
+    r = r.assign_coords(episode=np.arange(r.sizes["episode"]))
+    r[TASK] = (model.STEP_DIMS, np.full((r.sizes["episode"], longest), index, np.int16))
+    return r
+
+
 def stack_tasks(recordings: Mapping[str, Any]) -> Any:
     """One `xarray.Dataset` of `recordings` ({task name: recording of that task}, each made by
     `vnl.record.record` with the same network): episodes concatenated in the mapping's order,
     `task` (episode, time) the index of each episode's task, attributes `tasks` (JSON list) and
     `dropped` (JSON list of the variables left out). `VnlError` if the recordings do not share
-    their layers (not one network)."""
+    their layers (not one network) or their control step."""
     import xarray as xr
 
     if len(recordings) < 2:
         raise VnlError(f"stacking tasks needs two recordings or more, got {len(recordings)}")
     names, parts = list(recordings), list(recordings.values())
-    layers = [model.layers(r) for r in parts]
-    for name, these in zip(names[1:], layers[1:], strict=True):
-        if these != layers[0] or any(parts[0][k].shape[-1] != recordings[name][k].shape[-1] for k in these):
-            raise VnlError(f"the recordings of {names[0]} and {name} hold different layers: not one network's")
+    _check(names, parts)
     kept, dropped = _kept(parts)
+    if len({str(r.attrs.get("gait_reference_foot")) for r in parts}) > 1 and "gait_phase" in kept:
+        kept.remove("gait_phase")  # each task's phase is of another foot: not one variable
+        dropped.append("gait_phase")
     longest = max(r.sizes["time"] for r in parts)
-    time = next(r["time"] for r in parts if r.sizes["time"] == longest)
-    ready = []
-    for i, r in enumerate(parts):
-        r = r[[k for k in kept if k in r.data_vars]]
-        for k in kept:
-            if k not in r.data_vars:
-                r[k] = (model.STEP_DIMS, np.full((r.sizes["episode"], r.sizes["time"]), np.nan))
-        r = r.reindex(time=time).assign_coords(episode=np.arange(r.sizes["episode"]))
-        r[TASK] = (model.STEP_DIMS, np.full((r.sizes["episode"], longest), i, np.int16))
-        ready.append(r)
-    ds = xr.concat(ready, dim="episode", data_vars="all", coords="minimal", compat="override", join="outer")
+    time = next(r["time"].values for r in parts if r.sizes["time"] == longest)
+    ready = [_padded(r, kept, longest, i) for i, r in enumerate(parts)]
+    ds = xr.concat(ready, dim="episode", data_vars="minimal", coords="minimal", compat="override", join="outer")
     for flag in ("active", "done"):  # padded steps: inactive
         if flag in ds:
             ds[flag] = ds[flag].fillna(0)
-    ds = ds.assign_coords(episode=np.arange(ds.sizes["episode"]))
+    ds = ds.assign_coords(episode=np.arange(ds.sizes["episode"]), time=time)
+    for k in kept:  # a variable's attributes, from the first recording that has it
+        ds[k].attrs = dict(next(r[k].attrs for r in parts if k in r.data_vars))
     same = [k for k, v in parts[0].attrs.items() if all(str(r.attrs.get(k)) == str(v) for r in parts)]
     ds.attrs = {k: parts[0].attrs[k] for k in same if k not in _PER_RECORDING}
     ds.attrs.update(
         title=f"vnl neural recording of {ds.attrs.get('env', '?')}, tasks {', '.join(names)}",
         tasks=json.dumps(names),
         dropped=json.dumps(dropped),
-        env_sets=json.dumps({n: r.attrs.get("env_set", "[]") for n, r in recordings.items()}),
+        env_sets=json.dumps({n: _listed(r.attrs.get("env_set", "[]")) for n, r in recordings.items()}),
     )
     ds[TASK].attrs["description"] = "the episode's task: an index into the tasks attribute"
     return ds
