@@ -78,6 +78,21 @@ def test_morlet_amplitude_peaks_at_the_signals_frequency():
     assert amp[0, 0] == pytest.approx(0.5, rel=0.1)  # a unit-L1 wavelet: half the sine's amplitude
 
 
+def test_an_episode_shorter_than_the_slowest_wavelet_keeps_its_length():
+    """A 1-Hz wavelet spans about 5 s (250 steps here): an episode that ended after 60 steps (an
+    animal that escaped early) has 60 rows of amplitudes, as `np.convolve(..., "same")` gives for
+    longer episodes."""
+    x = np.sin(np.arange(60) * DT * 2 * np.pi * 3.0)[:, None]
+    amp = embedding.morlet_amplitude(x, 1 / DT, [1.0, 3.0])
+    assert amp.shape == (60, 2)
+    long = np.sin(np.arange(400) * DT * 2 * np.pi * 3.0)[:, None]
+    w = embedding.morlet_amplitude(long, 1 / DT, [3.0])
+    sd = embedding.MORLET_CYCLES / (2 * np.pi * 3.0)
+    t = np.arange(-3 * sd, 3 * sd + DT, DT)
+    kernel = np.exp(2j * np.pi * 3.0 * t) * np.exp(-(t**2) / (2 * sd**2))
+    np.testing.assert_allclose(w[:, 0], np.abs(np.convolve(long[:, 0], kernel / np.abs(kernel).sum(), "same")))
+
+
 def test_too_short_a_recording_is_refused_and_the_cli_writes_figure_and_json(tmp_path, capsys):
     ds, _ = two_gaits()
     with pytest.raises(VnlError, match="at least 50"):

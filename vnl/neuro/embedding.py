@@ -53,7 +53,11 @@ def morlet_amplitude(x: np.ndarray, fs: float, freqs: list[float]) -> np.ndarray
             t = np.arange(-3 * sd, 3 * sd + 1 / fs, 1 / fs)
             w = np.exp(2j * np.pi * f * t) * np.exp(-(t**2) / (2 * sd**2))
             w /= np.abs(w).sum()
-            out.append(np.abs(np.convolve(x[:, j], w, mode="same")))
+            # "same" as np.convolve's, also when the wavelet is longer than the episode (its "same" then
+            # returns the wavelet's length)
+            full = np.convolve(x[:, j], w, mode="full")
+            start = (len(w) - 1) // 2
+            out.append(np.abs(full[start : start + len(x)]))
     return np.stack(out, axis=1)
 
 
