@@ -58,7 +58,9 @@ for the permutation control: with fewer, the true labelling is a large share of 
 class TaskResult:
     """Per layer: `eta2` (units,), `control_eta2` (repeats, units), `cross_rsa` (tasks, tasks, NaN
     where two tasks share too few behaviours), `within_rsa` (tasks,), `control_cross` (repeats,);
-    `shares` (behaviours, tasks): each behaviour's share of each task's steps."""
+    `shares` (behaviours, tasks): each behaviour's share of each task's steps; `shared` (tasks,
+    tasks): the behaviours two tasks both show, at least MIN_STEPS steps in each half of each
+    (an RDM needs 4)."""
 
     tasks: list[str]
     eta2: dict[str, np.ndarray]
@@ -69,6 +71,7 @@ class TaskResult:
     shares: np.ndarray
     behaviours: int
     source: str
+    shared: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 0), int))
 
     def threshold(self, layer: str) -> float:
         return float(np.nanpercentile(self.control_eta2[layer], 95))
@@ -98,6 +101,10 @@ class TaskResult:
             "tasks": self.tasks,
             "behaviours": self.behaviours,
             "behaviour_share_per_task": {t: self.shares[:, i].tolist() for i, t in enumerate(self.tasks)},
+            "behaviours_shared_by_pair": {
+                f"{a}|{b}": int(self.shared[i, j])
+                for (i, a), (j, b) in itertools.combinations(enumerate(self.tasks), 2)
+            },
             "task_variance": "eta² of each unit on the episode's task, after a least-squares fit from the behaviour; "
             "control: task labels permuted among episodes",
             "rsa": "Spearman of per-behaviour RDMs (correlation distance) of halves of the tasks' episodes: across "
@@ -250,6 +257,9 @@ def analyze(ds: Any, options: Options) -> TaskResult:
     for t in range(len(names)):
         result.shares[:, t] = np.bincount(labels[task == t], minlength=k) / max(1, (task == t).sum())
     halves = _halves(task, episode, len(names))
+    shown = np.array([[np.sum(labels[h] == b) >= MIN_STEPS for b in range(k)] for pair in halves for h in pair])
+    both = shown.reshape(len(names), 2, k).all(1)  # (tasks, behaviours): in each half
+    result.shared = (both[:, None, :] & both[None, :, :]).sum(-1)
     for layer in layers:
         x = model.activity(ds, layer)[episode, time]
         residual = x - behaviour @ np.linalg.lstsq(behaviour, x, rcond=None)[0]
@@ -269,6 +279,11 @@ def output_name(options: Options, ds: Any = None) -> str:
 
 def report(result: TaskResult) -> str:
     lines = [f"tasks: {', '.join(result.tasks)}; {result.behaviours} behaviours"]
+    pairs = itertools.combinations(enumerate(result.tasks), 2)
+    few = [f"{a} and {b} share {result.shared[i, j]}" for (i, a), (j, b) in pairs if result.shared[i, j] < 4]
+    if few:
+        lines.append(f"cross-task RSA needs 4 behaviours two tasks both show ({MIN_STEPS} steps in each half): "
+                     f"{'; '.join(few)}")  # fmt: skip
     for layer in result.eta2:
         s = result.summary(layer)
         lines.append(
