@@ -123,7 +123,10 @@ def test_the_planted_invariant_task_specific_and_task_carrying_layers_are_told_a
     assert tonic["task_modulated_fraction"] >= 0.75 and tonic["median_eta2"] > 0.5
     assert shared["task_modulated_fraction"] <= 0.25
     assert r.shares.shape == (K, 3) and np.allclose(r.shares.sum(0), 1)
-    assert (r.shared[np.triu_indices(3, 1)] >= 4).all()
+    # a pair of tasks has a cross-task RSA where halves of each share 4 behaviours or more (10 steps each)
+    iu = np.triu_indices(3, 1)
+    assert r.shared.max() <= K
+    np.testing.assert_array_equal(np.isnan(r.cross_rsa["policy_hidden_0"][iu]), r.shared[iu] < 4)
 
 
 def test_a_unit_coding_behaviour_alone_is_not_task_modulated_when_the_tasks_show_other_behaviours():
@@ -143,7 +146,7 @@ def test_a_unit_coding_behaviour_alone_is_not_task_modulated_when_the_tasks_show
     parts = {n: task_recording(i, 300, rng, codes, occupancy=apart[i]) for i, n in enumerate(TASKS[:2])}
     few = tasks_method.analyze(stack.stack_tasks(parts), Options(states=K, layer="policy_hidden_0"))
     assert few.shared[0, 1] < 4 and few.summary("policy_hidden_0")["cross_task_rsa"] is None
-    assert f"run and forage share {few.shared[0, 1]}" in tasks_method.report(few)
+    assert f"run and forage share at most {few.shared[0, 1]}" in tasks_method.report(few)
     # the confound is there: on the raw activity most units would pass the same permutation control
     x, labels = ds["policy_hidden_0"].values.reshape(-1, U), stack.episode_tasks(ds)
     raw = tasks_method.eta_squared(x, np.repeat(labels, 600))

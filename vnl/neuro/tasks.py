@@ -59,8 +59,8 @@ class TaskResult:
     """Per layer: `eta2` (units,), `control_eta2` (repeats, units), `cross_rsa` (tasks, tasks, NaN
     where two tasks share too few behaviours), `within_rsa` (tasks,), `control_cross` (repeats,);
     `shares` (behaviours, tasks): each behaviour's share of each task's steps; `shared` (tasks,
-    tasks): the behaviours two tasks both show, at least MIN_STEPS steps in each half of each
-    (an RDM needs 4)."""
+    tasks): the most behaviours a half of one task and a half of the other both show, MIN_STEPS
+    steps each (a cross-task RSA needs 4)."""
 
     tasks: list[str]
     eta2: dict[str, np.ndarray]
@@ -257,9 +257,9 @@ def analyze(ds: Any, options: Options) -> TaskResult:
     for t in range(len(names)):
         result.shares[:, t] = np.bincount(labels[task == t], minlength=k) / max(1, (task == t).sum())
     halves = _halves(task, episode, len(names))
-    shown = np.array([[np.sum(labels[h] == b) >= MIN_STEPS for b in range(k)] for pair in halves for h in pair])
-    both = shown.reshape(len(names), 2, k).all(1)  # (tasks, behaviours): in each half
-    result.shared = (both[:, None, :] & both[None, :, :]).sum(-1)
+    shown = [[np.bincount(labels[h], minlength=k) >= MIN_STEPS for h in pair] for pair in halves]
+    result.shared = np.array([[max(int((x & y).sum()) for x in shown[a] for y in shown[b]) for b in range(len(names))]
+                              for a in range(len(names))])  # fmt: skip
     for layer in layers:
         x = model.activity(ds, layer)[episode, time]
         residual = x - behaviour @ np.linalg.lstsq(behaviour, x, rcond=None)[0]
@@ -280,9 +280,9 @@ def output_name(options: Options, ds: Any = None) -> str:
 def report(result: TaskResult) -> str:
     lines = [f"tasks: {', '.join(result.tasks)}; {result.behaviours} behaviours"]
     pairs = itertools.combinations(enumerate(result.tasks), 2)
-    few = [f"{a} and {b} share {result.shared[i, j]}" for (i, a), (j, b) in pairs if result.shared[i, j] < 4]
+    few = [f"{a} and {b} share at most {result.shared[i, j]}" for (i, a), (j, b) in pairs if result.shared[i, j] < 4]
     if few:
-        lines.append(f"cross-task RSA needs 4 behaviours two tasks both show ({MIN_STEPS} steps in each half): "
+        lines.append(f"cross-task RSA needs 4 behaviours two tasks' halves both show ({MIN_STEPS} steps each): "
                      f"{'; '.join(few)}")  # fmt: skip
     for layer in result.eta2:
         s = result.summary(layer)
