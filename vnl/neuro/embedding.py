@@ -83,8 +83,10 @@ class Embedding:
     task_names: list[str] = dataclasses.field(default_factory=list)
 
     def behaviours(self) -> list[dict[str, Any]]:
-        """Per behaviour: share of steps, mean dwell (s), mean `color` over its steps."""
+        """Per behaviour: share of steps, mean dwell (s), and the mean `color` over its steps or,
+        coloured by task, `task_share` and `share_of_task`."""
         out = []
+        task_of = [self.color == i for i in range(len(self.task_names))]
         for k in range(int(self.labels.max()) + 1):
             mine = self.labels == k
             runs = _run_lengths(self.labels, self.episode, k)
@@ -100,7 +102,6 @@ class Embedding:
                 continue
             # a recording of several tasks: each task's share of the behaviour's steps, and the
             # share of each task's own steps in it (tasks recorded for longer have more steps)
-            task_of = [self.color == i for i in range(len(self.task_names))]
             out[-1]["task_share"] = {t: float(np.mean(self.color[mine] == i)) if mine.any() else 0.0
                                      for i, t in enumerate(self.task_names)}  # fmt: skip
             out[-1]["share_of_task"] = {t: float(np.mean(mine[task_of[i]])) if task_of[i].any() else 0.0
