@@ -69,3 +69,17 @@ def test_mocap_to_nwb_notebook_runs(tmp_path):
     runs = next((tmp_path / "runs").iterdir())
     assert (runs / "rat_clips.h5").is_file() and (runs / "rat_fit.png").stat().st_size > 10_000
     assert (runs / "rat" / "record.nwb").stat().st_size > 100_000
+
+
+def test_one_rat_four_tasks_notebook_runs(tmp_path):
+    nb = execute("one-rat-four-tasks", tmp_path)
+    outputs = [o for cell in nb.cells if cell.cell_type == "code" for o in cell.get("outputs", [])]
+    text = "".join(o.get("text", "") for o in outputs if o.get("output_type") == "stream")
+    tasks = ["rodent_run_gaps", "rodent_maze_forage", "rodent_escape_bowl", "rodent_two_touch"]
+    assert f"{tasks} {{'episode': 16, 'time': 300" in text
+    assert "silhouette" in text and text.count("task-modulated units") >= 8  # trained and untrained layers
+    assert all(f"{t}: gait frequency" in text for t in tasks)  # the rhythm of each task
+    assert text.count("(within ") == 6  # DSA: every pair of the four tasks against its within-task distances
+    assert len([o for o in outputs if "image/png" in o.get("data", {})]) >= 2  # the embedding, the tasks
+    run = next((tmp_path / "runs").iterdir())
+    assert (run / "record.nc").stat().st_size > 100_000 and (run / "tasks.png").is_file()

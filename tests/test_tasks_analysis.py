@@ -215,5 +215,87 @@ def test_what_needs_one_world_or_one_gait_refuses_a_recording_of_several_tasks(t
     assert "an NWB file holds one task" in capsys.readouterr().err and not (tmp_path / "rec.nwb").exists()
     with pytest.raises(VnlError, match="holds one task"):
         nwb.write(ds, tmp_path / "direct.nwb")
-    with pytest.raises(VnlError, match="its own gait reference"):
+    with pytest.raises(VnlError, match="run, forage, touch.*--task NAME"):
         rhythm.analyze(ds, Options())
+
+
+def test_one_task_of_a_stacked_recording_is_that_tasks_recording_and_every_method_takes_it(tmp_path, capsys):
+    ds, parts = stacked()
+    one = stack.select(ds, "forage")  # the second task: 300 of the stack's 400 steps
+    assert one.sizes == {**dict(one.sizes), "episode": E, "time": 300} and "task" not in one
+    for k in ("policy_hidden_0", "policy_hidden_1", "value_hidden_0", "joint_angle", "com_velocity"):
+        np.testing.assert_array_equal(one[k].values, parts["forage"][k].values)
+    assert one["active"].values.all() and "gap_distance" not in one  # the first task's variable is left out
+    assert "gap_distance" in stack.select(ds, "run") and stack.select(ds, "run").sizes["time"] == 400
+    assert stack.tasks(one) == [] and json.loads(one.attrs["env_set"]) == ["env_config.task=forage"]
+    assert "tasks" not in one.attrs and one.attrs["control_dt"] == DT
+    with pytest.raises(VnlError, match="no task 'jump': it holds run, forage, touch"):
+        stack.select(ds, "jump")
+    with pytest.raises(VnlError, match="holds one task"):
+        stack.select(one, "forage")
+    # each task's gait is referred to another foot: the stack leaves gait_phase out, a task's own is made again
+    from vnl.recording import behaviour
+
+    rng, feet = np.random.default_rng(1), ["hand_L", "foot_R"]
+    for i, (name, part) in enumerate(parts.items()):
+        contact = rng.random((E, part.sizes["time"], 2)) < 0.5
+        contact[..., i % 2] |= rng.random(contact.shape[:2]) < 0.5  # the reference foot touches down most
+        foot, parts[name]["gait_phase"] = behaviour.reference_gait(contact, np.ones(contact.shape[:2], bool), feet)
+        parts[name]["foot_contact"] = (("episode", "time", "end_effector"), contact.astype(float))
+        parts[name] = parts[name].assign_coords(end_effector=feet).assign_attrs(gait_reference_foot=foot)
+    gaits = stack.stack_tasks(parts)
+    assert "gait_phase" not in gaits and "gait_phase" in json.loads(gaits.attrs["dropped"])
+    for name in ("run", "forage"):
+        again = stack.select(gaits, name)
+        np.testing.assert_array_equal(again["gait_phase"].values, parts[name]["gait_phase"].values)
+        assert again.attrs["gait_reference_foot"] == parts[name].attrs["gait_reference_foot"]
+    path = tmp_path / "rec.nc"
+    ds.to_netcdf(path)
+    argv = ["analyze", str(path), "--method", "encoding", "--features", "joint_angle", "--folds", "2"]
+    assert main([*argv, "--layer", "policy_hidden_1", "--task", "touch"]) == 0
+    doc = json.loads((tmp_path / "encoding_touch.json").read_text())
+    assert (tmp_path / "encoding_touch.png").is_file() and "policy_hidden_1" in json.dumps(doc)
+    capsys.readouterr()
+    for argv, said in (
+        (["--task", "jump"], "no task 'jump': it holds run, forage, touch"),
+        (["--method", "tasks", "--task", "run"], "--method tasks compares the tasks"),
+    ):
+        assert main(["analyze", str(path), *argv]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("vnl: error:") and said in err and "Traceback" not in err
+
+
+def rotating(rng, freq, steps, episodes=4, units=6):
+    """(episodes, steps, units): a damped-free rotation at `freq` Hz in a random plane of the
+    units, from a random phase per episode, plus noise."""
+    basis = np.linalg.qr(rng.normal(size=(units, units)))[0][:, :2]
+    phase = rng.uniform(0, 2 * np.pi, (episodes, 1)) + 2 * np.pi * freq * DT * np.arange(steps)
+    plane = np.stack([np.cos(phase), np.sin(phase)], -1)
+    return plane @ basis.T + 0.02 * rng.normal(size=(episodes, steps, units))
+
+
+def test_dsa_across_tasks_tells_the_same_dynamics_from_other_dynamics():
+    from vnl.neuro import task_dynamics
+
+    rng = np.random.default_rng(3)
+    parts = {}
+    for name, freq in (("run", 1.0), ("forage", 1.0), ("touch", 3.5)):
+        x = rotating(rng, freq, 120)
+        parts[name] = xr.Dataset(
+            {"active": (("episode", "time"), np.ones(x.shape[:2])),
+             "policy_hidden_0": (("episode", "time", "policy_hidden_0_unit"), x)},
+            coords={"episode": np.arange(4), "time": np.arange(120) * DT}, attrs={"control_dt": DT},
+        )  # fmt: skip
+    ds = stack.stack_tasks(parts)
+    result = task_dynamics.dynamics(ds, "policy_hidden_0", n_delays=3, rank=2, iters=400)
+    same, other = result.cross[0, 1], result.cross[0, 2]
+    assert result.within.max() < 0.05 and same < 0.05, (result.within, same)  # the same rotation, other samples
+    assert other > 0.2, (other, same, result.within)  # another frequency
+    assert result.to_json()["cross_task"].keys() == {"run|forage", "run|touch", "forage|touch"}
+    assert "run | touch" in task_dynamics.report(result)
+    with pytest.raises(VnlError, match="delays \\+ 2"):
+        task_dynamics.dynamics(ds.isel(time=slice(0, 4)), "policy_hidden_0", n_delays=3, rank=2)
+    with pytest.raises(VnlError, match="holds one task"):
+        task_dynamics.dynamics(parts["run"], "policy_hidden_0")
+    with pytest.raises(VnlError, match="touch has 1 episode"):
+        task_dynamics.dynamics(ds.isel(episode=[0, 1, 4, 5, 8]), "policy_hidden_0", n_delays=3, rank=2)

@@ -218,6 +218,35 @@ def record(run: LoadedRun, episodes: int, steps: int, seed: int = 0, determinist
     return _dataset(run, raw, e.obs, seed, deterministic)
 
 
+def task_steps(run: LoadedRun, steps: int | None = None) -> dict[str, int]:
+    """The control steps `record_tasks` records of each task of a suite's run: `steps`, else the
+    run's `ppo.episode_length`, else the task's own episode length."""
+    views = getattr(run.env, "views", None)
+    if not views:
+        raise VnlError(f"{run.config.env} is one task, not a suite: record it with `record`")
+    return {n: steps or run.config.ppo.episode_length or v.config.episode_length for n, v in views.items()}
+
+
+def record_tasks(
+    run: LoadedRun, episodes: int, steps: int | None = None, seed: int = 0, deterministic: bool = True, say: Any = None
+) -> Any:
+    """A suite's policy (`run.env` a `vnl.envs.suite` env) recorded on each of its tasks: `episodes`
+    episodes of each, `steps` control steps (None: each task's own episode length), stacked into
+    one recording (`vnl.recording.stack.stack_tasks`: episodes (K * episodes,), `task` (episode,
+    time) the index into the `tasks` attribute). `say(text)` hears which task is being recorded."""
+    import dataclasses
+
+    from vnl.recording import stack
+
+    parts = {}
+    for name, length in task_steps(run, steps).items():
+        one = dataclasses.replace(run, env=run.env.views[name], env_set=(*run.env_set, f"env_config.task={name}"))
+        if say is not None:
+            say(f"recording task {name}: {episodes} episodes x {length} steps")
+        parts[name] = record(one, episodes, length, seed, deterministic)
+    return stack.stack_tasks(parts)
+
+
 _LATENT = {
     "encoder_intention_mean": "the intention latent's mean (linear)",
     "encoder_intention_log_std": "the intention latent's log standard deviation (linear)",

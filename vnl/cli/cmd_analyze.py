@@ -54,6 +54,8 @@ def add(sub: Any) -> None:
                    "or permuted in time")  # fmt: skip
     p.add_argument("--folds", type=options.integer(2), default=5, help="cross-validation folds, by episode (default 5)")
     p.add_argument("--seed", type=options.SEED, default=0, help="seed of the control")
+    p.add_argument("--task", help="a suite's recording of several tasks: analyse this task's episodes alone "
+                   "(every method but tasks)")  # fmt: skip
     p.add_argument("--out", help="PNG path (default next to the recording; the JSON beside it)")
     options.nwb_flags(p)
 
@@ -72,6 +74,8 @@ def check(args: argparse.Namespace) -> None:
     checks.input_file(args.recording, "recording")
     if args.method not in ("pca", "embedding") and args.color:
         raise VnlError("--color colours the PCA or the embedding; use it with --method pca or embedding")
+    if args.task is not None and args.method == "tasks":
+        raise VnlError("--method tasks compares the tasks; --task picks one: leave --task out")
     # the default PCA layer's name is read from the recording: its folder is checked now
     _check_outputs(args, args.out or default_out(args))
     checks.recording(args.recording, wants=formats.ANALYSABLE)  # by its content: NWB, another HDF5 file, ...
@@ -82,7 +86,8 @@ def default_out(args: argparse.Namespace, ds: Any = None) -> str:
     """Beside the recording: the method's name for it (`output_name`), e.g. pca_<layer>.png,
     decoding_<target>.png."""
     name = registry.analysis(args.method).output_name(method_options(args), ds)
-    return str(checks.beside(args.recording, f"{name}.png"))
+    task = f"_{args.task}" if args.task else ""
+    return str(checks.beside(args.recording, f"{name}{task}.png"))
 
 
 def _check_outputs(args: argparse.Namespace, out: str | Path) -> None:
@@ -97,6 +102,10 @@ def run(args: argparse.Namespace) -> int:
     ds = recording.read(args.recording, formats.ANALYSABLE, bin=args.bin, intervals=args.intervals)
     if "reading" in ds.attrs:  # an NWB file: what was read, on which steps, which episodes
         process.say(f"[vnl] read {ds.attrs['reading']}")
+    if args.task is not None:
+        from vnl.recording import stack
+
+        ds = stack.select(ds, args.task)
     method = registry.analysis(args.method)
     out = Path(args.out or default_out(args, ds))
     _check_outputs(args, out)

@@ -128,10 +128,7 @@ def _record_tasks(run: Any, args: argparse.Namespace) -> tuple[Any, str]:
     """A suite's policy recorded on each of its tasks (`--episodes` each, each task's own episode
     length unless --steps), stacked into one recording (`vnl.recording.stack`); and the steps
     recorded, as text."""
-    import dataclasses
-
     from vnl import record
-    from vnl.recording import stack
 
     if output_format(args) == "nwb":
         raise VnlError(
@@ -140,14 +137,9 @@ def _record_tasks(run: Any, args: argparse.Namespace) -> tuple[Any, str]:
         )
     if args.viewer:
         raise VnlError(f"--viewer draws one task; add --set env_config.task=NAME ({', '.join(run.env.views)})")
-    parts, lengths = {}, []
-    for name, view in run.env.views.items():
-        steps = args.steps or run.config.ppo.episode_length or view.config.episode_length
-        one = dataclasses.replace(run, env=view, env_set=(*run.env_set, f"env_config.task={name}"))
-        print(f"[vnl] recording task {name}: {args.episodes} episodes x {steps} steps", file=sys.stderr)
-        parts[name] = record.record(one, args.episodes, steps, args.seed, deterministic=not args.stochastic)
-        lengths.append(f"{name} {steps}")
-    return stack.stack_tasks(parts), ", ".join(lengths)
+    lengths = [f"{n} {steps}" for n, steps in record.task_steps(run, args.steps).items()]
+    say = lambda text: print(f"[vnl] {text}", file=sys.stderr)  # noqa: E731
+    return record.record_tasks(run, args.episodes, args.steps, args.seed, not args.stochastic, say), ", ".join(lengths)
 
 
 def _write_nwb(ds: Any, out: Path, config: str | None, experimenter: str | None) -> Path:

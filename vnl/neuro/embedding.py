@@ -204,6 +204,7 @@ def output_name(options: Options, ds: Any = None) -> str:
 
 
 def report(result: Embedding) -> str:
+    """The lines `vnl analyze --method embedding` prints: the behaviours, their shares and dwell times."""
     parts = ", ".join(
         f"{b['behaviour']}: {100 * b['share']:.0f}% (dwell {b['mean_dwell_s']:.2f} s)" for b in result.behaviours()
     )

@@ -174,8 +174,8 @@ def analyze(ds: Any, options: Options) -> Rhythm:
     """The rhythm of `options.layer` (default: every layer) against the gait of the recording."""
     if stack.tasks(ds):
         raise VnlError(
-            "the recording holds several tasks, each with its own gait reference: analyse one task's "
-            "recording (`vnl record RUN --set env_config.task=NAME`)"
+            f"the recording holds several tasks ({', '.join(stack.tasks(ds))}), each with its own gait: analyse "
+            "one task's episodes (`vnl analyze REC --method rhythm --task NAME`, `vnl.recording.stack.select`)"
         )
     layers = [options.layer] if options.layer else model.layers(ds)
     for layer in layers:
@@ -204,6 +204,7 @@ def output_name(options: Options, ds: Any = None) -> str:
 
 
 def report(result: Rhythm) -> str:
+    """The lines `vnl analyze --method rhythm` prints: the gait frequency, each layer's rhythmic units."""
     peak = f"the feet's contact spectrum, peak index {result.gait_peak_index:.1f}"
     lines = [f"gait frequency {result.gait_frequency:.2f} Hz ({peak})"]
     if not result.gait_peak_index >= RHYTHMIC_INDEX:

@@ -278,6 +278,7 @@ def output_name(options: Options, ds: Any = None) -> str:
 
 
 def report(result: TaskResult) -> str:
+    """The lines `vnl analyze --method tasks` prints: per layer its task-modulated units and RSAs."""
     lines = [f"tasks: {', '.join(result.tasks)}; {result.behaviours} behaviours"]
     pairs = itertools.combinations(enumerate(result.tasks), 2)
     few = [f"{a} and {b} share at most {result.shared[i, j]}" for (i, a), (j, b) in pairs if result.shared[i, j] < 4]

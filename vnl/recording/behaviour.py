@@ -132,6 +132,19 @@ def gait_phase(contact: np.ndarray, active: np.ndarray) -> np.ndarray:
     return phase
 
 
+def reference_gait(contact: np.ndarray, active: np.ndarray, feet: list[str]) -> tuple[str, Variable]:
+    """The reference foot (the one of `feet` with the most touchdowns in `contact` (E, T, feet))
+    and the `gait_phase` variable of its strides (`gait_phase`)."""
+    counts = [int(touchdowns(contact[..., i], active).sum()) for i in range(len(feet))]
+    ref = int(np.argmax(counts))
+    desc = f"stride phase of {feet[ref]}: 0 at touchdown, linear to the next"
+    return str(feet[ref]), (
+        model.STEP_DIMS,
+        gait_phase(contact[..., ref], active),
+        {"units": "cycles", "description": desc},
+    )
+
+
 def gap_distance(start: np.ndarray, length: np.ndarray, x: np.ndarray) -> np.ndarray:
     """Distance (E, T) along x from `x` (E, T) to the near edge of the next gap whose far edge is
     ahead, 0 over a gap, NaN past the last gap; platforms `start`, `length` (E, P) (unused: inf)."""
@@ -229,11 +242,7 @@ def variables(env: Any, raw: dict[str, Any]) -> tuple[dict[str, Variable], dict[
         coords["end_effector"] = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, e) for e in ends]
         desc = "1 while a colliding geom of the end effector's subtree touches a non-walker geom"
         out["foot_contact"] = (et + ("end_effector",), contact, {"units": "0/1", "description": desc})
-        counts = [int(touchdowns(contact[..., i], active).sum()) for i in range(len(ends))]
-        ref = int(np.argmax(counts))
-        attrs["gait_reference_foot"] = coords["end_effector"][ref]
-        desc = f"stride phase of {coords['end_effector'][ref]}: 0 at touchdown, linear to the next"
-        out["gait_phase"] = (et, gait_phase(contact[..., ref], active), {"units": "cycles", "description": desc})
+        attrs["gait_reference_foot"], out["gait_phase"] = reference_gait(contact, active, coords["end_effector"])
     if "layout_start" in raw:
         x = np.asarray(raw["body_pos"])[:, :, root, 0]
         dist = gap_distance(np.asarray(raw["layout_start"]), np.asarray(raw["layout_length"]), x)

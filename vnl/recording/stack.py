@@ -149,3 +149,36 @@ def stack_tasks(recordings: Mapping[str, Any]) -> Any:
     )
     ds[TASK].attrs["description"] = "the episode's task: an index into the tasks attribute"
     return ds
+
+
+def select(ds: Any, name: str) -> Any:
+    """Task `name`'s episodes of a stacked recording, as a recording of that task alone: its
+    episodes renumbered from 0, the padding past its longest episode cut, without `task` and
+    without the per-step variables of the other tasks only (all NaN in its episodes), with its own
+    `gait_phase` where the stack left the tasks' phases out; `env_set` says the task. `VnlError` if
+    the recording holds one task or not `name`."""
+    names = tasks(ds)
+    if not names:
+        raise VnlError(f"the recording holds one task, not several: leave out the task {name!r}")
+    if name not in names:
+        raise VnlError(f"the recording holds no task {name!r}: it holds {', '.join(names)}")
+    one = ds.isel(episode=np.flatnonzero(episode_tasks(ds) == names.index(name)))
+    active = np.asarray(one["active"].values) > 0
+    one = one.isel(time=slice(0, int(np.flatnonzero(active.any(0)).max()) + 1 if active.any() else 1))
+    empty = [
+        k
+        for k, v in one.data_vars.items()
+        if k != TASK and v.dims == model.STEP_DIMS and v.dtype.kind == "f" and bool(np.isnan(v.values).all())
+    ]
+    one = one.drop_vars([TASK, *empty]).assign_coords(episode=np.arange(one.sizes["episode"]))
+    sets = json.loads(ds.attrs.get("env_sets", "{}"))
+    one.attrs = {k: v for k, v in ds.attrs.items() if k not in ("tasks", "env_sets", "dropped")}
+    one.attrs.update(title=f"vnl neural recording of {ds.attrs.get('env', '?')}, task {name}",
+                     env_set=json.dumps(sets.get(name, [f"env_config.task={name}"])))  # fmt: skip
+    if "gait_phase" not in one and "foot_contact" in one:  # dropped from the stack: this task's own again
+        from vnl.recording import behaviour
+
+        contact, active = one["foot_contact"].values > 0.5, np.asarray(one["active"].values) > 0
+        foot, one["gait_phase"] = behaviour.reference_gait(contact, active, list(one["end_effector"].values))
+        one.attrs["gait_reference_foot"] = foot
+    return one

@@ -1,0 +1,108 @@
+"""Population dynamics across tasks: Dynamical Similarity Analysis (`vnl.neuro.dsa`) of one layer's
+activity in each task of a stacked recording (`vnl record` of a suite's run), after Merel et al.
+2020's question of whether one network runs the same dynamics in every task.
+
+Each task's episodes are split in two halves (the first and the second half of its episodes, as
+the cross-task RSA of `vnl.neuro.tasks` splits them), every episode cut to the same number of
+steps (the shortest active episode of the recording), and each half's trials give one HAVOK
+operator. Two distances, in radians (0: the same dynamics up to a change of coordinates):
+
+- the *within-task distance* of a task compares its two halves: the same dynamics seen in other
+  samples. It is the control, the distance "the same" reaches at this amount of data;
+- the *cross-task distance* of two tasks is the mean of two pairings of their halves (first with
+  first, second with second), each on as much data as a within-task distance.
+
+A cross-task distance at the two tasks' within-task distances says the layer runs the same
+dynamics in both; one well above them, other dynamics.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+from typing import Any
+
+import numpy as np
+
+from vnl.errors import VnlError
+from vnl.neuro import dsa
+from vnl.recording import model, stack
+
+
+@dataclasses.dataclass
+class TaskDynamics:
+    """`cross` (tasks, tasks) and `within` (tasks,) DSA distances (rad) of `layer`, on trials of
+    `steps` steps, with `delays` delays and rank `rank`."""
+
+    tasks: list[str]
+    layer: str
+    cross: np.ndarray
+    within: np.ndarray
+    steps: int
+    delays: int
+    rank: int
+
+    def to_json(self) -> dict[str, Any]:
+        pairs = itertools.combinations(range(len(self.tasks)), 2)
+        return {
+            "layer": self.layer,
+            "steps_per_trial": self.steps,
+            "delays": self.delays,
+            "rank": self.rank,
+            "within_task": dict(zip(self.tasks, self.within.tolist(), strict=True)),
+            "cross_task": {f"{self.tasks[a]}|{self.tasks[b]}": float(self.cross[a, b]) for a, b in pairs},
+        }
+
+
+def _trials(ds: Any, layer: str, minimum: int) -> tuple[np.ndarray, int]:
+    """The layer's activity (episodes, L, units) over each episode's first L steps, L the shortest
+    episode's active length; `VnlError` if L < `minimum`."""
+    active = np.asarray(ds["active"].values) > 0
+    length = int(active.sum(1).min())
+    if length < minimum:
+        raise VnlError(
+            f"DSA across tasks needs every episode to last {minimum} steps or more (delays + 2); the shortest "
+            f"lasts {length}: record longer episodes (`--steps`) or use fewer delays"
+        )
+    return model.activity(ds, layer)[:, :length], length
+
+
+def dynamics(ds: Any, layer: str, n_delays: int = 10, rank: int = 20, iters: int = 1500) -> TaskDynamics:
+    """Within- and cross-task DSA distances of `layer` in stacked recording `ds` (see the module
+    docstring). `VnlError`, before any fit, for a recording of one task, a task with fewer than 2
+    episodes, episodes too short for the delays or too few steps for the rank."""
+    names = stack.tasks(ds)
+    if len(names) < 2:
+        raise VnlError("the recording holds one task; DSA across tasks needs a suite's recording of several")
+    model.check_layer(ds, layer)
+    x, length = _trials(ds, layer, n_delays + 2)
+    task = stack.episode_tasks(ds)
+    halves = []
+    for t, name in enumerate(names):
+        eps = np.flatnonzero(task == t)
+        if len(eps) < 2:
+            raise VnlError(f"{name} has {len(eps)} episode(s); DSA across tasks needs 2 of every task or more")
+        halves.append((eps[: len(eps) // 2], eps[len(eps) // 2 :]))
+    dsa.check_transitions(min(len(h[0]) for h in halves) * (length - n_delays), rank)
+    ops = [[dsa.havok(x[h], n_delays, rank) for h in pair] for pair in halves]
+
+    def distance(a: np.ndarray, b: np.ndarray) -> float:
+        return dsa.procrustes(a, b, iters)[0]
+
+    within = np.array([distance(a, b) for a, b in ops])
+    cross = np.zeros((len(names), len(names)))
+    for a, b in itertools.combinations(range(len(names)), 2):
+        cross[a, b] = cross[b, a] = np.mean([distance(ops[a][i], ops[b][i]) for i in (0, 1)])
+    cross[np.diag_indices(len(names))] = within
+    return TaskDynamics(names, layer, cross, within, length, n_delays, rank)
+
+
+def report(result: TaskDynamics) -> str:
+    """One line per task pair: the cross-task distance against the two tasks' within-task ones."""
+    lines = [f"DSA of {result.layer} across tasks (rad; trials of {result.steps} steps):"]
+    for a, b in itertools.combinations(range(len(result.tasks)), 2):
+        lines.append(
+            f"  {result.tasks[a]} | {result.tasks[b]}: {result.cross[a, b]:.3f} "
+            f"(within {result.within[a]:.3f} and {result.within[b]:.3f})"
+        )
+    return "\n".join(lines)
