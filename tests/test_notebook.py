@@ -8,7 +8,9 @@ from pathlib import Path
 
 import pytest
 
-pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("notebook")]
+# Each tutorial is a group of its own (no compile is shared: each has its own cache), so the two
+# workers can run two at a time and the longest stops being one worker's tail.
+pytestmark = pytest.mark.slow
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "scripts" / "docs"))
@@ -23,6 +25,7 @@ def execute(name: str, tmp_path: Path):
     return nb
 
 
+@pytest.mark.xdist_group("notebook_quickstart")
 def test_quickstart_notebook_runs(tmp_path):
     nb = execute("quickstart", tmp_path)
     outputs = {i: cell.get("outputs", []) for i, cell in enumerate(nb.cells) if cell.cell_type == "code"}
@@ -37,6 +40,7 @@ def test_quickstart_notebook_runs(tmp_path):
     assert (runs / "seed0" / "metrics.jsonl").is_file() and (runs / "view.rrd").stat().st_size > 100_000
 
 
+@pytest.mark.xdist_group("notebook_rat_to_neurons")
 def test_rat_to_neurons_notebook_runs(tmp_path):
     nb = execute("rat-to-neurons", tmp_path)
     outputs = [o for cell in nb.cells if cell.cell_type == "code" for o in cell.get("outputs", [])]
@@ -52,6 +56,7 @@ def test_rat_to_neurons_notebook_runs(tmp_path):
     assert (rat / "record.nwb").stat().st_size > 100_000
 
 
+@pytest.mark.xdist_group("notebook_mocap_to_nwb")
 def test_mocap_to_nwb_notebook_runs(tmp_path):
     nb = execute("mocap-to-nwb", tmp_path)
     outputs = [o for cell in nb.cells if cell.cell_type == "code" for o in cell.get("outputs", [])]
@@ -71,6 +76,7 @@ def test_mocap_to_nwb_notebook_runs(tmp_path):
     assert (runs / "rat" / "record.nwb").stat().st_size > 100_000
 
 
+@pytest.mark.xdist_group("notebook_one_rat_four_tasks")
 def test_one_rat_four_tasks_notebook_runs(tmp_path):
     nb = execute("one-rat-four-tasks", tmp_path)
     outputs = [o for cell in nb.cells if cell.cell_type == "code" for o in cell.get("outputs", [])]

@@ -2,6 +2,7 @@
 (`vnl analyze --method tasks`) on synthetic recordings with planted structure: one layer codes the
 behaviour the same way in every task, one codes it differently per task, one carries the task."""
 
+import functools
 import json
 
 import numpy as np
@@ -274,7 +275,7 @@ def rotating(rng, freq, steps, episodes=4, units=6):
     return plane @ basis.T + 0.02 * rng.normal(size=(episodes, steps, units))
 
 
-def test_dsa_across_tasks_tells_the_same_dynamics_from_other_dynamics():
+def test_dsa_across_tasks_tells_the_same_dynamics_from_other_dynamics(tmp_path, capsys, monkeypatch):
     from vnl.neuro import task_dynamics
 
     rng = np.random.default_rng(3)
@@ -299,3 +300,15 @@ def test_dsa_across_tasks_tells_the_same_dynamics_from_other_dynamics():
         task_dynamics.dynamics(parts["run"], "policy_hidden_0")
     with pytest.raises(VnlError, match="touch has 1 episode"):
         task_dynamics.dynamics(ds.isel(episode=[0, 1, 4, 5, 8]), "policy_hidden_0", n_delays=3, rank=2)
+
+    # the same from the command line: every layer (here one), a heatmap and its JSON
+    monkeypatch.setattr(task_dynamics, "dynamics", functools.partial(task_dynamics.dynamics, iters=400))
+    path = tmp_path / "rec.nc"
+    ds.to_netcdf(path)
+    assert main(["analyze", str(path), "--method", "dynamics", "--delays", "3", "--rank", "2"]) == 0
+    assert "run | touch: 0.31" in capsys.readouterr().out
+    doc = json.loads((tmp_path / "dynamics.json").read_text())["layers"]["policy_hidden_0"]
+    assert doc["cross_task"]["run|forage"] < 0.05 < 0.2 < doc["cross_task"]["forage|touch"] and doc["rank"] == 2
+    assert (tmp_path / "dynamics.png").stat().st_size > 10_000
+    assert main(["analyze", str(path), "--method", "dynamics", "--rank", "200"]) == 2
+    assert "no layer has units x --delays >= --rank (200)" in capsys.readouterr().err

@@ -1,5 +1,6 @@
 """`vnl analyze RECORDING`: one of the analyses of `vnl.neuro.registry.ANALYSES` (PCA over time,
-encoding, decoding, behavioural states, embedding, rhythmic units, tasks) of a recording (vnl's
+encoding, decoding, behavioural states, embedding, rhythmic units, tasks, dynamics across tasks) of a
+recording (vnl's
 NetCDF, or an NWB file: vnl's export or a lab's session with units and behaviour), each a PNG and
 a JSON file."""
 
@@ -19,7 +20,8 @@ from vnl.recording import formats
 def add(sub: Any) -> None:
     p = options.command(
         sub, "analyze",
-        "PCA, encoding, decoding, behavioural states, embedding, rhythmic units or tasks of a recording, as PNG + JSON",
+        "PCA, encoding, decoding, behavioural states, embedding, rhythmic units, tasks or dynamics of a recording, "
+        "as PNG + JSON",
         run, check, mujoco=False,
     )  # fmt: skip
     p.add_argument(
@@ -53,6 +55,8 @@ def add(sub: Any) -> None:
                    help="the control: behaviour circularly shifted in time within each episode (default), "
                    "or permuted in time")  # fmt: skip
     p.add_argument("--folds", type=options.integer(2), default=5, help="cross-validation folds, by episode (default 5)")
+    p.add_argument("--delays", type=options.COUNT, default=10, help="dynamics: delays of the Hankel embedding (10)")
+    p.add_argument("--rank", type=options.COUNT, default=20, help="dynamics: rank of the linear operator (20)")
     p.add_argument("--seed", type=options.SEED, default=0, help="seed of the control")
     p.add_argument("--task", help="a suite's recording of several tasks: analyse this task's episodes alone "
                    "(every method but tasks)")  # fmt: skip
@@ -67,6 +71,7 @@ def method_options(args: argparse.Namespace) -> registry.Options:
         layer=args.layer, color=args.color, target=args.target, features=names,
         states=args.states or registry.DEFAULT_STATES.get(args.method, 4),
         segmentation=args.segmentation, control=args.control, folds=args.folds, seed=args.seed,
+        delays=args.delays, rank=args.rank,
     )  # fmt: skip
 
 
@@ -74,8 +79,8 @@ def check(args: argparse.Namespace) -> None:
     checks.input_file(args.recording, "recording")
     if args.method not in ("pca", "embedding") and args.color:
         raise VnlError("--color colours the PCA or the embedding; use it with --method pca or embedding")
-    if args.task is not None and args.method == "tasks":
-        raise VnlError("--method tasks compares the tasks; --task picks one: leave --task out")
+    if args.task is not None and args.method in ("tasks", "dynamics"):
+        raise VnlError(f"--method {args.method} compares the tasks; --task picks one: leave --task out")
     # the default PCA layer's name is read from the recording: its folder is checked now
     _check_outputs(args, args.out or default_out(args))
     checks.recording(args.recording, wants=formats.ANALYSABLE)  # by its content: NWB, another HDF5 file, ...

@@ -57,6 +57,11 @@ ANALYSES = {  # name -> (module, what it does: the --method help)
         "a suite's recording of several tasks: each layer's task-modulated units and its RSA of --states "
         "behaviours across tasks",
     ),
+    "dynamics": (
+        "vnl.neuro.task_dynamics",
+        "a suite's recording of several tasks: each layer's dynamics (DSA) compared between tasks, against "
+        "the distance between two halves of one task",
+    ),
 }
 DEFAULT_STATES = {"tasks": 10}
 """--states when it is not given, by method (else 4)."""

@@ -14,18 +14,25 @@ operator. Two distances, in radians (0: the same dynamics up to a change of coor
 
 A cross-task distance at the two tasks' within-task distances says the layer runs the same
 dynamics in both; one well above them, other dynamics.
+
+`vnl analyze REC --method dynamics` runs it on every layer wide enough for the operator (units x
+`--delays` at least `--rank`), or on `--layer`: a figure of each layer's distances (the diagonal:
+the within-task ones) and the JSON beside it.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import itertools
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from vnl import durable
 from vnl.errors import VnlError
 from vnl.neuro import dsa
+from vnl.neuro.registry import Options
 from vnl.recording import model, stack
 
 
@@ -97,8 +104,11 @@ def dynamics(ds: Any, layer: str, n_delays: int = 10, rank: int = 20, iters: int
     return TaskDynamics(names, layer, cross, within, length, n_delays, rank)
 
 
-def report(result: TaskDynamics) -> str:
-    """One line per task pair: the cross-task distance against the two tasks' within-task ones."""
+def report(result: TaskDynamics | Dynamics) -> str:
+    """One line per task pair: the cross-task distance against the two tasks' within-task ones
+    (for a `Dynamics`, every layer's)."""
+    if isinstance(result, Dynamics):
+        return "\n".join(report(r) for r in result.layers.values())
     lines = [f"DSA of {result.layer} across tasks (rad; trials of {result.steps} steps):"]
     for a, b in itertools.combinations(range(len(result.tasks)), 2):
         lines.append(
@@ -106,3 +116,54 @@ def report(result: TaskDynamics) -> str:
             f"(within {result.within[a]:.3f} and {result.within[b]:.3f})"
         )
     return "\n".join(lines)
+
+
+@dataclasses.dataclass
+class Dynamics:
+    """`vnl analyze --method dynamics`: the `TaskDynamics` of each layer analysed."""
+
+    layers: dict[str, TaskDynamics]
+    source: str
+
+    def to_json(self) -> dict[str, Any]:
+        return {"source": self.source, "layers": {k: v.to_json() for k, v in self.layers.items()}}
+
+
+def analyze(ds: Any, options: Options) -> Dynamics:
+    """`dynamics` of `options.layer`, else of every layer with units x delays >= rank (delays and rank:
+    `options.delays`, `options.rank`)."""
+    if len(stack.tasks(ds)) < 2:
+        raise VnlError("the recording holds one task; --method dynamics needs a suite's recording of several")
+    layers = [options.layer] if options.layer else [
+        k for k in model.layers(ds) if ds[k].shape[-1] * options.delays >= options.rank
+    ]  # fmt: skip
+    if not layers:
+        raise VnlError(f"no layer has units x --delays >= --rank ({options.rank}): use a lower --rank")
+    out = {layer: dynamics(ds, layer, options.delays, options.rank) for layer in layers}
+    return Dynamics(out, model.description(ds))
+
+
+def output_name(options: Options, ds: Any = None) -> str:
+    return "dynamics" if not options.layer else f"dynamics_{options.layer}"
+
+
+def figure(result: Dynamics, out: str | Path, dt: float = 1.0) -> Path:
+    """One heatmap per layer: the cross-task DSA distances, the within-task ones on the diagonal."""
+    from matplotlib.figure import Figure
+
+    n = len(result.layers)
+    fig = Figure(figsize=(3.6 * n + 1, 3.8))
+    axes = np.atleast_1d(fig.subplots(1, n))
+    for ax, (layer, r) in zip(axes, result.layers.items(), strict=True):
+        im = ax.imshow(r.cross, vmin=0, vmax=float(np.pi / 2), cmap="viridis_r")
+        ticks = range(len(r.tasks))
+        ax.set_xticks(ticks, r.tasks, rotation=45, ha="right", fontsize=7)
+        ax.set_yticks(ticks, r.tasks, fontsize=7)
+        for (i, j), v in np.ndenumerate(r.cross):
+            ax.text(j, i, f"{v:.2f}", ha="center", va="center", fontsize=7, color="w" if v > 0.8 else "k")
+        ax.set_title(layer, fontsize=9)
+    fig.colorbar(im, ax=list(axes), label="DSA distance (rad); diagonal: within a task")
+    fig.suptitle(result.source, fontsize=10)
+    out = Path(out)
+    durable.write_atomic(out, writer=lambda tmp: fig.savefig(tmp, dpi=100, bbox_inches="tight"))
+    return out
