@@ -233,7 +233,9 @@ class SuiteEnv:
     def __init__(self, config: Any, members: dict[str, Env]) -> None:
         first_name, first = next(iter(members.items()))
         for name, env in members.items():
-            if not isinstance(env.observation_shape, tuple) or len(env.observation_shape) != 1:
+            # observation_size reads a walker task's layout; observation_shape would trace its reset (~10 s for
+            # a rat on MJX, 4 times for rodent_suite: docs/how-to/multitask.md)
+            if not isinstance(env.observation_size, int):
                 raise VnlError(f"suite member {name}: a suite needs flat observations (no vision), got a dict")
             if abs(env.dt - first.dt) > 1e-9 or _actuators(env) != _actuators(first):
                 raise VnlError(
