@@ -86,6 +86,7 @@ def test_one_rat_four_tasks_notebook_runs(tmp_path):
     assert "silhouette" in text and text.count("task-modulated units") >= 8  # trained and untrained layers
     assert all(f"{t}: gait frequency" in text for t in tasks)  # the rhythm of each task
     assert text.count("(within ") == 6  # DSA: every pair of the four tasks against its within-task distances
-    assert len([o for o in outputs if "image/png" in o.get("data", {})]) >= 2  # the embedding, the tasks
+    assert len([o for o in outputs if "image/png" in o.get("data", {})]) >= 3  # the embedding, tasks, dynamics
     run = next((tmp_path / "runs").iterdir())
     assert (run / "record.nc").stat().st_size > 100_000 and (run / "tasks.png").is_file()
+    assert (run / "dynamics.png").stat().st_size > 10_000
