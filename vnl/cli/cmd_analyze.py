@@ -1,8 +1,7 @@
 """`vnl analyze RECORDING`: one of the analyses of `vnl.neuro.registry.ANALYSES` (PCA over time,
-encoding, decoding, behavioural states, embedding, rhythmic units, tasks, dynamics across tasks) of a
-recording (vnl's
-NetCDF, or an NWB file: vnl's export or a lab's session with units and behaviour), each a PNG and
-a JSON file."""
+encoding, decoding, behavioural states, embedding, rhythmic units, tasks, dynamics across tasks) of
+a recording (vnl's NetCDF, or an NWB file: vnl's export or a lab's session with units and
+behaviour), each a PNG and a JSON file."""
 
 from __future__ import annotations
 

@@ -61,19 +61,6 @@ class TaskDynamics:
         }
 
 
-def _trials(ds: Any, layer: str, minimum: int) -> tuple[np.ndarray, int]:
-    """The layer's activity (episodes, L, units) over each episode's first L steps, L the shortest
-    episode's active length; `VnlError` if L < `minimum`."""
-    active = np.asarray(ds["active"].values) > 0
-    length = int(active.sum(1).min())
-    if length < minimum:
-        raise VnlError(
-            f"DSA across tasks needs every episode to last {minimum} steps or more (delays + 2); the shortest "
-            f"lasts {length}: record longer episodes (`--steps`) or use fewer delays"
-        )
-    return model.activity(ds, layer)[:, :length], length
-
-
 def dynamics(ds: Any, layer: str, n_delays: int = 10, rank: int = 20, iters: int = 1500) -> TaskDynamics:
     """Within- and cross-task DSA distances of `layer` in stacked recording `ds` (see the module
     docstring). `VnlError`, before any fit, for a recording of one task, a task with fewer than 2
@@ -82,7 +69,8 @@ def dynamics(ds: Any, layer: str, n_delays: int = 10, rank: int = 20, iters: int
     if len(names) < 2:
         raise VnlError("the recording holds one task; DSA across tasks needs a suite's recording of several")
     model.check_layer(ds, layer)
-    x, length = _trials(ds, layer, n_delays + 2)
+    _, length = dsa.trial_mask(np.asarray(ds["active"].values) > 0, n_delays + 2)
+    x = model.activity(ds, layer)[:, :length]  # every episode's first `length` steps: the trials
     task = stack.episode_tasks(ds)
     halves = []
     for t, name in enumerate(names):
@@ -132,7 +120,7 @@ class Dynamics:
 def analyze(ds: Any, options: Options) -> Dynamics:
     """`dynamics` of `options.layer`, else of every layer with units x delays >= rank (delays and rank:
     `options.delays`, `options.rank`)."""
-    if len(stack.tasks(ds)) < 2:
+    if len(stack.tasks(ds)) < 2:  # before the layers are chosen: this, not "no layer", is the fault
         raise VnlError("the recording holds one task; --method dynamics needs a suite's recording of several")
     layers = [options.layer] if options.layer else [
         k for k in model.layers(ds) if ds[k].shape[-1] * options.delays >= options.rank
