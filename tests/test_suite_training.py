@@ -150,6 +150,25 @@ def test_vnl_record_records_every_task_into_one_recording_or_the_one_named(refer
 
 @pytest.mark.slow
 @pytest.mark.xdist_group("suite")
+def test_vnl_compare_shows_the_networks_every_task_or_the_one_named(reference, capsys):
+    both, plane = reference / "cmp_all.png", reference / "cmp_plane.png"
+    args = ["compare", f"{reference}@0", str(reference), "--episodes", "2"]
+    assert main([*args, "--out", str(both)]) == 0
+    assert main([*args, "--set", "env_config.task=test_plane", "--out", str(plane)]) == 0
+    both, plane = (json.loads(p.with_suffix(".json").read_text()) for p in (both, plane))
+    assert both["observations"] == "2 episodes of each task of reference@0 (seed 0)"
+    assert both["samples"] == 2 * 12 + 2 * 9  # every step of both tasks' episodes, each its own length
+    assert plane["observations"] == "2 episodes of reference@0 (seed 0) (env_config.task=test_plane)"
+    assert plane["samples"] == 2 * 9
+    # --set makes a new recording's task: not with episodes already recorded
+    assert main(["record", str(reference), "--episodes", "2", "--out", str(reference / "cmp_rec.nc")]) == 0
+    capsys.readouterr()
+    assert main([*args, "--recording", str(reference / "cmp_rec.nc"), "--set", "env_config.task=test_plane"]) == 2
+    assert "--set chooses the task of a new recording" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+@pytest.mark.xdist_group("suite")
 def test_a_recurrent_network_trains_on_a_suite_and_final_videos_are_per_task(tmp_path):
     run = tmp_path / "gru"
     sets = ["network.core=gru", "network.core_size=8", "ppo.num_evals=2", "log.video_seconds=0.2"]

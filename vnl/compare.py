@@ -250,10 +250,13 @@ def shared_recording(
     steps: int | None = None,
     seed: int = 0,
     say: Any = print,
+    env_set: list[str] | None = None,
 ) -> tuple[Any, str]:
     """The episodes every network is shown: `recording`, else the first recording among the
     sources, else a new recording of the first source's policy (`episodes` x `steps`, default the
-    episode length). Returns (dataset, a description of where it came from)."""
+    episode length) on its task, or on the variant `env_set` makes (`--set env_config.KEY=VALUE`);
+    a suite's policy without `env_config.task` is recorded on every task (`episodes` of each,
+    stacked: `vnl.record.record_tasks`). Returns (dataset, a description of where it came from)."""
     from vnl import record
     from vnl.policy import load_run
 
@@ -261,11 +264,16 @@ def shared_recording(
     if path is not None:
         ds = formats.read(path)
         return ds, f"{path} ({ds.sizes['episode']} episodes)"
-    run = load_run(sources[0].run_dir, step=sources[0].step)
+    run = load_run(sources[0].run_dir, step=sources[0].step, env_set=env_set)
+    variant = f" ({', '.join(env_set)})" if env_set else ""
+    if getattr(run.env, "views", None):
+        say(f"[vnl] recording {episodes} episodes of each task of {run.run_dir} (step {run.step:,}){variant} ...")
+        ds = record.record_tasks(run, episodes, steps, seed, say=lambda text: say(f"[vnl] {text}"))
+        return ds, f"{episodes} episodes of each task of {run.run_dir.name}@{run.step} (seed {seed}){variant}"
     steps = steps or run.config.episode_length()
-    say(f"[vnl] recording {episodes} episodes x {steps} steps of {run.run_dir} (step {run.step:,}) ...")
+    say(f"[vnl] recording {episodes} episodes x {steps} steps of {run.run_dir} (step {run.step:,}){variant} ...")
     ds = record.record(run, episodes, steps, seed)
-    return ds, f"{episodes} episodes of {run.run_dir.name}@{run.step} (seed {seed})"
+    return ds, f"{episodes} episodes of {run.run_dir.name}@{run.step} (seed {seed}){variant}"
 
 
 def observations(ds: Any) -> tuple[np.ndarray, np.ndarray]:

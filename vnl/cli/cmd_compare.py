@@ -32,6 +32,7 @@ def add(sub: Any) -> None:
     p.add_argument("--episodes", type=options.COUNT, default=4, help="episodes of a new recording of the first network")
     p.add_argument("--steps", type=options.COUNT, help="steps per episode of a new recording (default: episode length)")
     p.add_argument("--seed", type=options.SEED, default=0, help="seed of a new recording")
+    options.task_variant_flag(p)
     measures = "; ".join(f"{name}: {text}" for name, (_, text) in registry.MEASURES.items())
     p.add_argument("--measure", choices=list(registry.MEASURES), help=measures)
     p.add_argument("--rsa", metavar="DISTANCE", help="RSA with this distance (e.g. correlation): --measure rsa")
@@ -94,6 +95,7 @@ def check(args: argparse.Namespace) -> None:
             checks.run_dir(str(run), "NETWORK")
         else:
             raise VnlError(f"{text} is neither a run directory (RUN_DIR or RUN_DIR@STEP) nor a recording file")
+    _check_variant(args)
     if recorded(args):
         _check_recorded(args)
         # Recorded activity runs no network: no MuJoCo, and JAX only for DSA's fit, once the inputs
@@ -113,6 +115,17 @@ def check(args: argparse.Namespace) -> None:
                 "with a lab's NWB file); networks shown a recording run on its steps"
             )
     _check_outputs(Path(args.out or default_out(args)), _recordings(args), given=bool(args.out))
+
+
+def _check_variant(args: argparse.Namespace) -> None:
+    """`--set` makes the task of a new recording: refused where the episodes are a recording's."""
+    checks.task_variants(args.set)
+    given = args.recording or next((t for t in args.networks if Path(t).is_file()), None)
+    if args.set and given:
+        raise VnlError(
+            f"--set chooses the task of a new recording, but the networks are shown {given}'s episodes: leave "
+            "--set out, or give run directories only (RUN_DIR, RUN_DIR@STEP) to record the first on the variant"
+        )
 
 
 def recorded(args: argparse.Namespace) -> bool:
@@ -190,7 +203,9 @@ def run(args: argparse.Namespace) -> int:
     sources = [compare.parse_source(text) for text in args.networks]
     out = Path(args.out) if args.out else sources[0].run_dir / f"compare_{name}.png"
     _check_outputs(out, _recordings(args), given=bool(args.out))
-    ds, source = compare.shared_recording(sources, args.recording, args.episodes, args.steps, args.seed, process.say)
+    ds, source = compare.shared_recording(
+        sources, args.recording, args.episodes, args.steps, args.seed, process.say, env_set=args.set
+    )
     obs, mask = compare.observations(ds)
     if hasattr(measure, "steps"):  # the steps the measure compares (a subsample, trials of equal length)
         mask = measure.steps(mask, opts)
