@@ -12,6 +12,13 @@ Systems (trials=4, time=200, 64 units; noisy linear dynamics read out through a 
 layer): X and Y share their dynamics (8-dim damped rotations) with different readouts and noise;
 Xr is X with its units rotated; Z and W have other dynamics (other frequencies, faster decay).
 Settings: n_delays=10, rank=20, angular score, 1500 iterations, learning rate 5e-3 (dsa-metric's).
+
+With `--batch` (no reference needed) it times vnl's alignments of every pair of the systems' operators
+(the 10 pairs of the 5 systems; `vnl analyze --method dynamics` aligns 16 per layer for four tasks) one at a time
+against all in one batch (`dsa.procrustes_many`), alternating, `--rounds` each after a compiling
+round, and prints the medians, their ratio and the largest difference between the two's distances:
+
+  .venv/bin/python benchmarks/dsa_check.py --batch [--rounds 3]
 """
 
 from __future__ import annotations
@@ -74,11 +81,42 @@ def systems(seed: int = 0) -> dict[str, np.ndarray]:
     }
 
 
+def batch(rounds: int) -> None:
+    """One at a time against one batch: medians of `rounds` alternating rounds, and the distances' agreement."""
+    import itertools
+
+    from vnl.neuro import dsa
+
+    ops = [dsa.havok(x, 10, 20) for x in systems().values()]
+    pairs = list(itertools.combinations(ops, 2))
+    ways = {
+        "one at a time": lambda: [dsa.procrustes(a, b) for a, b in pairs],
+        "one batch": lambda: dsa.procrustes_many(pairs),
+    }
+    found = {name: run() for name, run in ways.items()}  # the compiling round, not timed
+    times: dict[str, list[float]] = {name: [] for name in ways}
+    for _ in range(rounds):
+        for name, run in ways.items():
+            t = time.perf_counter()
+            run()
+            times[name].append(time.perf_counter() - t)
+    med = {name: float(np.median(t)) for name, t in times.items()}
+    for name in ways:
+        print(f"{name:>14}: {med[name]:6.2f} s for {len(pairs)} pairs (median of {rounds})")
+    diff = max(abs(x[0] - y[0]) for x, y in zip(found["one at a time"], found["one batch"], strict=True))
+    print(f"ratio {med['one at a time'] / med['one batch']:.1f}x; largest difference of a distance {diff:.2e} rad")
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--reference-python", default="/tmp/nwb-investigation/venv/bin/python")
+    p.add_argument("--batch", action="store_true", help="time one batch against one pair at a time")
+    p.add_argument("--rounds", type=int, default=3)
     args = p.parse_args()
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    if args.batch:
+        batch(args.rounds)
+        return
     from vnl.neuro import dsa
 
     data = systems()

@@ -26,6 +26,20 @@ def test_procrustes_finds_a_hidden_change_of_basis():
     assert dsa.procrustes(a, rng.normal(size=(6, 6)))[0] > 0.3
 
 
+def test_a_batch_of_pairs_gives_each_pair_s_own_alignment_in_order():
+    rng = np.random.default_rng(1)
+    a, b = rng.normal(size=(6, 6)), rng.normal(size=(6, 6))
+    q = ortho_group.rvs(6, random_state=3)
+    pairs = [(a, b), (rotation(0.3), rotation(0.5)), (a, q @ a @ q.T), (np.zeros((6, 6)), a), (b, a)]
+    found = dsa.procrustes_many(pairs, iters=300)
+    alone = [dsa.procrustes(x, y, iters=300) for x, y in pairs]
+    for (d, c), (d1, c1) in zip(found[:3] + found[4:], alone[:3] + alone[4:], strict=True):
+        assert d == pytest.approx(d1, abs=1e-5)  # pairs of 6 and of 2 in one call: each grouped by size
+        np.testing.assert_allclose(c, c1, atol=1e-4)
+    assert found[1][0] == pytest.approx(0.2, abs=2e-3) and found[2][0] < 0.1 < 0.3 < found[0][0]
+    assert np.isnan(found[3][0]) and np.isnan(alone[3][0])  # no dynamics: no angle, in its place
+
+
 def test_dsa_tells_same_dynamics_from_different_dynamics():
     rng = np.random.default_rng(0)
     a = oscillator(rng)

@@ -81,13 +81,15 @@ def dynamics(ds: Any, layer: str, n_delays: int = 10, rank: int = 20, iters: int
     dsa.check_transitions(min(len(h[0]) for h in halves) * (length - n_delays), rank)
     ops = [[dsa.havok(x[h], n_delays, rank) for h in pair] for pair in halves]
 
-    def distance(a: np.ndarray, b: np.ndarray) -> float:
-        return dsa.procrustes(a, b, iters)[0]
-
-    within = np.array([distance(a, b) for a, b in ops])
+    pairs = list(itertools.combinations(range(len(names)), 2))
+    found = dsa.procrustes_many(
+        [(a, b) for a, b in ops] + [(ops[a][i], ops[b][i]) for a, b in pairs for i in (0, 1)], iters
+    )  # every alignment in one batch
+    distances = np.array([d for d, _ in found])
+    within = distances[: len(ops)]
     cross = np.zeros((len(names), len(names)))
-    for a, b in itertools.combinations(range(len(names)), 2):
-        cross[a, b] = cross[b, a] = np.mean([distance(ops[a][i], ops[b][i]) for i in (0, 1)])
+    for k, (a, b) in enumerate(pairs):
+        cross[a, b] = cross[b, a] = distances[len(ops) + 2 * k : len(ops) + 2 * k + 2].mean()
     cross[np.diag_indices(len(names))] = within
     return TaskDynamics(names, layer, cross, within, length, n_delays, rank)
 
