@@ -155,6 +155,8 @@ def bad_invocations() -> list[list[str]]:
     ]
     cases += [["analyze", "rec.nc", "--layer", "nope"], ["analyze", "rec.nc", "--color", "nope"]]
     cases += [["compare", "run"], ["compare", "missing", "run"], ["compare", "run", "run", "--recording", "missing.nc"]]
+    cases += [["compare", "run", "run", "--set", "ppo.learning_rate=1"], ["compare", "run", "run", "--set", "=1"]]
+    cases += [["compare", "run", "run", "--recording", "rec.nc", "--set", "env_config.task=x"]]
     cases += [["compare", "run@x", "run"], ["view", "missing"], ["view", "run", "--episode", "2"]]
     return cases
 
