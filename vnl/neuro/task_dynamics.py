@@ -86,10 +86,10 @@ def dynamics(ds: Any, layer: str, n_delays: int = 10, rank: int = 20, iters: int
         [(a, b) for a, b in ops] + [(ops[a][i], ops[b][i]) for a, b in pairs for i in (0, 1)], iters
     )  # every alignment in one batch
     distances = np.array([d for d, _ in found])
-    within = distances[: len(ops)]
+    within, both_halves = distances[: len(ops)], distances[len(ops) :].reshape(len(pairs), 2)
     cross = np.zeros((len(names), len(names)))
-    for k, (a, b) in enumerate(pairs):
-        cross[a, b] = cross[b, a] = distances[len(ops) + 2 * k : len(ops) + 2 * k + 2].mean()
+    for (a, b), d in zip(pairs, both_halves.mean(axis=1), strict=True):
+        cross[a, b] = cross[b, a] = d
     cross[np.diag_indices(len(names))] = within
     return TaskDynamics(names, layer, cross, within, length, n_delays, rank)
 
