@@ -38,22 +38,18 @@ import math
 from pathlib import Path
 from typing import Any
 
-from curriculum import records, vnl  # benchmarks/curriculum.py: the shared run helpers
+import curriculum  # benchmarks/curriculum.py: the shared run helpers
+from curriculum import records, vnl
 
 
 def train(run: Path, args: argparse.Namespace) -> None:
-    """`vnl train` into `run` unless it finished; resumed if it stopped."""
+    """`vnl train` into `run` unless it finished (its config's ppo.num_timesteps); resumed if it stopped."""
     import yaml
 
     config = run / "config.yaml"
-    if config.is_file() and (run / "checkpoints").is_dir():
-        total = yaml.safe_load(config.read_text())["ppo"]["num_timesteps"]
-        done = records(run)
-        if not (done and done[-1]["step"] >= total):
-            vnl("train", "--resume", str(run), cache=args.compile_cache)
-        return
-    vnl("train", args.env, "--preset", args.preset, "--seed", str(args.seed), "--no-video", "--out", str(run),
-        cache=args.compile_cache)  # fmt: skip
+    total = yaml.safe_load(config.read_text())["ppo"]["num_timesteps"] if config.is_file() else math.inf
+    settings = [args.env, "--preset", args.preset, "--seed", str(args.seed), "--no-video"]
+    curriculum.train(run, total, settings, args.compile_cache)
 
 
 def newest(run: Path, step: int | None) -> int:
