@@ -50,13 +50,20 @@ def records(run: Path) -> list[dict]:
     return metrics_io.read(path) if path.is_file() else []
 
 
-def finished(run: Path, steps: int) -> bool:
+def finished(run: Path, steps: int | None) -> bool:
+    """Whether `run`'s last evaluation reached `steps` (None: the run's own ppo.num_timesteps)."""
+    if steps is None:
+        config = run / "config.yaml"
+        if not config.is_file():
+            return False
+        steps = int(yaml.safe_load(config.read_text())["ppo"]["num_timesteps"])
     done = records(run)
     return bool(done) and done[-1]["step"] >= steps
 
 
-def train(run: Path, steps: int, train_args: list[str], cache: str | None) -> None:
-    """`vnl train` into `run` unless it finished; resumed if it stopped."""
+def train(run: Path, steps: int | None, train_args: list[str], cache: str | None) -> None:
+    """`vnl train` into `run` unless it finished (its last evaluation reached `steps`; None: its
+    config's ppo.num_timesteps); resumed if it stopped."""
     if finished(run, steps):
         print(f"[curriculum] {run} finished; skipping", flush=True)
     elif (run / "config.yaml").is_file() and (run / "checkpoints").is_dir():

@@ -29,7 +29,8 @@ the fraction of episodes that left the bowl and the seconds spent in it (the who
 those that did not leave); cue_memory: the fraction of episodes that end at the cued target, and
 that end nearer it than the other (chance 0.5); rodent_two_touch: the correct pairs (two touches of
 the orb 0.7-0.9 s apart) and the first touches (trials begun) per episode; rodent_imitate: the
-control steps the rat tracked its reference clip before the episode ended.
+control steps the rat tracked its reference clip before the episode ended; maze forage: the targets
+collected per episode and the fraction of the maze's free cells visited.
 """
 
 from __future__ import annotations
@@ -39,10 +40,9 @@ import statistics
 import sys
 from pathlib import Path
 
-import yaml
-
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from curriculum import records, vnl  # noqa: E402  (the sibling benchmark's command runner and metrics reader)
+import curriculum  # noqa: E402  (the sibling benchmark: train-or-resume, the command runner, the metrics reader)
+from curriculum import records, vnl  # noqa: E402
 
 ENVS = ["ant_run", "rodent_run", "rodent_run_gaps", "rodent_escape_bowl", "ant_run_gaps", "ant_escape_bowl"]
 ENVS += ["humanoid_run"]
@@ -66,6 +66,10 @@ MEASURES = {
         ("first touches", "eval/episode_measure/first_touches", ".2f"),
     ],
     "imitate": [("frames tracked", "eval/episode_measure/frames_tracked", ".1f")],
+    "maze": [
+        ("targets", "eval/episode_measure/targets_collected", ".2f"),
+        ("maze seen", "eval/episode_measure/maze_seen", ".3f"),
+    ],
 }
 
 
@@ -76,23 +80,17 @@ def task_of(env: str) -> str:
         return "two_touch"
     if env.endswith("imitate"):
         return "imitate"
+    if "maze_forage" in env:
+        return "maze"
     return "gaps" if env.endswith("run_gaps") else "bowl" if env.endswith("escape_bowl") else "run"
 
 
 def train(run: Path, env: str, seed: int, args: argparse.Namespace) -> None:
-    """`vnl train` into `run` unless it finished (its last record reached ppo.num_timesteps)."""
-    cache = args.compile_cache
-    config = run / "config.yaml"
-    if config.is_file() and (run / "checkpoints").is_dir():
-        total = yaml.safe_load(config.read_text())["ppo"]["num_timesteps"]
-        done = records(run)
-        if done and done[-1]["step"] >= total:
-            print(f"[learning] {run} finished; skipping", flush=True)
-            return
-        vnl("train", "--resume", str(run), cache=cache)
-        return
+    """`vnl train` into `run` unless it finished (its last record reached ppo.num_timesteps);
+    resumed if it stopped (`curriculum.train`)."""
     sets = [x for a in args.set for x in ("--set", a)]
-    vnl("train", env, "--preset", args.preset, "--seed", str(seed), "--no-video", *sets, "--out", str(run), cache=cache)
+    command = [env, "--preset", args.preset, "--seed", str(seed), "--no-video", *sets]
+    curriculum.train(run, None, command, args.compile_cache)
 
 
 def value(record: dict, key: str) -> float:

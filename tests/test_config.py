@@ -193,7 +193,8 @@ vnl/train/presets/ (2026-11-26): the move changed no preset, and a later edit of
 2026-11-27: the task rules that cpu presets set moved into the envs' defaults (an env name is one
 task): no cpu row changed; gpu and tiny rows gained the rules and cameras the cpu rows had.
 2026-11-28: rodent_imitate steps with 8 Newton and line-search iterations (was 4), all presets.
-2026-11-28: suites gained env_config.reward_scales (null: every task's reward as it is)."""
+2026-11-28: suites gained env_config.reward_scales (null: every task's reward as it is).
+2026-11-29: maze forage and two-touch gained the fall rules (vnl.tasks.falls), off: null and 0.0."""
 
 
 @pytest.mark.parametrize("name", sorted(RESOLVED))

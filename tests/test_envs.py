@@ -195,11 +195,15 @@ def test_the_default_video_camera_frames_the_animal(name, impl):
 # test_mjx_rollouts_left_out_step_the_same_world checks it), and its task code is the same on both
 # physics (its C rollout runs it). Its MJX rollout took 222 s on CI (2026-11-28), where the suite
 # came within 4 minutes of its limit. (rodent_imitate's is not the same: 8 solver iterations.)
+# A variant whose world is another's, model for model (rodent_maze_forage_upright: the maze's task
+# code with the fall rules, vnl.tasks.falls, which read the root's orientation): its C rollout runs them.
 MJX_SAME_AS = {"rodent_two_touch": "rodent_run"}
+MJX_SAME_MODEL = {"rodent_maze_forage_upright": "rodent_maze_forage"}
 
 
 @pytest.mark.parametrize(
-    "name,impl", [p for p in by_env(NAMES, BOTH) if not (p.values[1] == "jax" and p.values[0] in MJX_SAME_AS)]
+    "name,impl",
+    [p for p in by_env(NAMES, BOTH) if not (p.values[1] == "jax" and p.values[0] in MJX_SAME_AS | MJX_SAME_MODEL)],
 )
 def test_reset_step_shapes_and_finiteness(name, impl):
     e = env(name, impl)
@@ -223,6 +227,19 @@ def test_reset_step_shapes_and_finiteness(name, impl):
     assert terms
     np.testing.assert_allclose(sum(traj.metrics[k] for k in terms), traj.reward, rtol=1e-5, atol=1e-5)
     assert sum(w for _, w in e.observation_layout()) == e.observation_size
+
+
+@pytest.mark.parametrize("name", sorted(MJX_SAME_MODEL))
+def test_mjx_rollouts_left_out_compile_the_same_model(name):
+    """The variant's compiled MuJoCo model is byte for byte the one whose MJX rollout stands for it."""
+    import mujoco
+
+    def saved(m):
+        buffer = np.zeros(mujoco.mj_sizeModel(m), np.uint8)
+        mujoco.mj_saveModel(m, None, buffer)
+        return buffer.tobytes()
+
+    assert saved(env(name, "c").mj_model) == saved(env(MJX_SAME_MODEL[name], "c").mj_model)
 
 
 @pytest.mark.parametrize("name", sorted(MJX_SAME_AS))

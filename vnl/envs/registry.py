@@ -70,6 +70,11 @@ _REGISTRY: dict[str, Entry] = {
         maze_forage.RODENT_MAZE_FORAGE,
         "The rat collects the targets in a maze with rooms redrawn every episode (dm_control's maze forage).",
     ),
+    "rodent_maze_forage_upright": Entry(
+        maze_forage.MazeForage,
+        maze_forage.RODENT_MAZE_FORAGE_UPRIGHT,
+        "rodent_maze_forage, but a fall (torso past 90 degrees) ends the episode and staying up pays 0.05 a step.",
+    ),
     "rodent_imitate": Entry(
         imitate.Imitate,
         imitate.RODENT_IMITATE,

@@ -11,7 +11,9 @@ Reward (`metrics["reward/targets"]`): `target_reward` (50) for each target the r
 the first time in the episode; a touched target is collected (hidden) for the rest of it. The
 episode ends when every target is collected (dm_control's `should_terminate_episode`), after 30 s
 (1500 control steps), or when the physics blows up; no contact termination, no other failure
-(dm_control's rat has no aliveness test).
+(dm_control's rat has no aliveness test). `rodent_maze_forage_upright` adds `vnl.tasks.falls`'
+rules: a fall (the torso past 90°) ends the episode and each step upright pays 0.05
+(`reward/healthy`, the `fell` metric).
 
 Observation (`vnl list -v`): proprioception as vnl's other rat tasks, `heading` (the world x-axis
 in the root's frame, a compass), `targets` (each target's centre in the root's frame, zeros once
@@ -68,15 +70,16 @@ from vnl.errors import VnlError
 from vnl.quiet_mjx import mjx
 from vnl.tasks.base import WalkerTask, WalkerTaskConfig, build_walker, check_walker, compile_world, spawn_height
 from vnl.tasks.contract import State
+from vnl.tasks.falls import FallRules, fall_terms, zero_metrics
 from vnl.tasks.touch import TouchGeoms
 
 MAX_SPEED = 3.0  # m/s: the fastest a walker's part moves, for the collision window's check
 
 
 @dataclasses.dataclass(frozen=True)
-class MazeForageConfig(WalkerTaskConfig):
+class MazeForageConfig(FallRules, WalkerTaskConfig):
     """`rodent_maze_forage`'s rules (dm_control's `basic_rodent_2020.rodent_maze_forage`). Lengths
-    in metres."""
+    in metres. `FallRules` (off here) make `rodent_maze_forage_upright`."""
 
     walker: str = "rodent"
     episode_length: int = 1500  # 30 s of 20-ms control steps, dm_control's time limit
@@ -92,6 +95,7 @@ class MazeForageConfig(WalkerTaskConfig):
 
     def validate(self) -> None:
         super().validate()
+        self.check_fall_rules()
         check_walker(self, arena="maze")
         self.maze.validate()
         if not (0 < self.target_radius < 10 and 0 <= self.target_height < 100):
@@ -107,6 +111,12 @@ class MazeForageConfig(WalkerTaskConfig):
 RODENT_MAZE_FORAGE = MazeForageConfig(observe_heading=True)
 """`rodent_maze_forage`: dm_control's rules (see the module docstring) with vnl's rat physics and
 what a blind rat needs: a compass, the targets' positions and the walls around it."""
+
+RODENT_MAZE_FORAGE_UPRIGHT = dataclasses.replace(RODENT_MAZE_FORAGE, healthy_min_upright=0.0, healthy_reward=0.05)
+"""`rodent_maze_forage_upright`: the maze with `vnl.tasks.falls`' rules: the episode ends when the
+torso tips past 90° (on its side or back), and each step upright pays 0.05 (75 for a whole 30-s
+episode, against 50 a target). From a runner, the dm_control task taught the rat to fall over near
+a target (docs/experiments/rat-maze.md)."""
 
 
 class MazeForage(WalkerTask):
@@ -203,6 +213,7 @@ class MazeForage(WalkerTask):
             "measure/maze_seen": zero,
             "targets_left": jp.sum(~collected).astype(jp.float32),
             "physics_nan": zero,
+            **zero_metrics(cfg),
         }
         return State(data, self._obs(data, layout, collected), zero, zero, metrics, info)
 
@@ -231,15 +242,19 @@ class MazeForage(WalkerTask):
         seen_before = jp.sum(state.info["visited"])
         visited = jp.where(ok > 0, state.info["visited"].at[cell[0], cell[1]].set(True), state.info["visited"])
         seen = (jp.sum(visited) - seen_before).astype(jp.float32) / self.free_cells(layout)
-        reward = cfg.target_reward * n_new
-        done = jp.maximum(jp.all(collected).astype(jp.float32), blew_up)
+        fall, fell = fall_terms(cfg, self.upright_cosine(data), ok)
+        targets = cfg.target_reward * n_new
+        reward = targets + sum(fall.values(), jp.zeros((), jp.float32))
+        done = jp.maximum(jp.maximum(jp.all(collected).astype(jp.float32), blew_up), fell)
         metrics = {
             **state.metrics,
-            "reward/targets": reward,
+            "reward/targets": targets,
             "measure/targets_collected": n_new,
             "measure/maze_seen": seen,
             "targets_left": jp.sum(~collected).astype(jp.float32),
             "physics_nan": blew_up,
+            **{f"reward/{k}": v for k, v in fall.items()},
+            **({"fell": fell} if cfg.healthy_min_upright is not None else {}),
         }
         info = {**state.info, "collected": collected, "visited": visited}
         obs = self._obs(data, layout, collected)

@@ -85,6 +85,7 @@ from vnl.tasks.base import (
     spawn_height,
 )
 from vnl.tasks.contract import State
+from vnl.tasks.falls import FallRules, fall_terms, zero_metrics
 from vnl.tasks.touch import TouchGeoms
 
 PRE_TOUCH, TOUCHED_ONCE, TOUCHED_TWICE, TOUCHED_TOO_SOON, NO_SECOND_TOUCH = range(5)
@@ -95,9 +96,10 @@ _STEP_EPS = 1e-6  # seconds / control step within this of an integer count as it
 
 
 @dataclasses.dataclass(frozen=True)
-class TwoTouchConfig(WalkerTaskConfig):
+class TwoTouchConfig(FallRules, WalkerTaskConfig):
     """`rodent_two_touch`'s rules (dm_control's `basic_rodent_2020.rodent_two_touch`). Times in
-    seconds (counted in control steps), lengths in metres."""
+    seconds (counted in control steps), lengths in metres. `FallRules` are off here, as in
+    dm_control (`vnl.tasks.falls`)."""
 
     walker: str = "rodent"
     episode_length: int = 1500  # 30 s of 20-ms control steps, dm_control's time limit
@@ -123,6 +125,7 @@ class TwoTouchConfig(WalkerTaskConfig):
 
     def validate(self) -> None:
         super().validate()
+        self.check_fall_rules()
         check_walker(self, arena="two-touch floor")
         if not self.hands or any(not isinstance(h, str) or not h for h in self.hands):
             raise VnlError(f"hands must name one or more bodies of the walker, got {list(self.hands)}")
@@ -206,11 +209,15 @@ class TwoTouch(WalkerTask):
             "task_logic": zero,
             "hand_distance": self.hand_distance(data),
             "physics_nan": zero,
+            **zero_metrics(self._config),
         }
         return State(data, self._obs(data, izero), zero, zero, metrics, info)
 
-    # The hands' positions: hand_distance of a blown-up step reads them; docs/experiments/compact-checkpoints.md
-    previous_state_reads = ("xpos",)
+    @property
+    def previous_state_reads(self) -> tuple[str, ...]:
+        """The hands' positions (hand_distance of a blown-up step reads them) and, with fall rules,
+        the root's orientation: docs/experiments/compact-checkpoints.md."""
+        return ("xpos",) + (("xmat",) if self._config.healthy_min_upright is not None else ())
 
     def step(self, state: State, action: jax.Array) -> State:
         state = self.prepare(state)
@@ -243,10 +250,12 @@ class TwoTouch(WalkerTask):
         touching = (self.touches(data) * ok) > 0
         info, events = self.advance(state.info, t, touching)
         closeness = CLOSENESS_SCALE * cfg.touch_reward * self.closeness(data) * ok
+        fall, fell = fall_terms(cfg, self.upright_cosine(data), ok)
         terms = {
             "closeness": closeness,
             "first_touch": cfg.touch_reward * events["first_touch"],
             "second_touch": cfg.touch_reward * events["correct"],
+            **fall,
         }
         metrics = {
             **state.metrics,
@@ -259,10 +268,12 @@ class TwoTouch(WalkerTask):
             "task_logic": info["logic"].astype(jp.float32),
             "hand_distance": self.hand_distance(data),
             "physics_nan": blew_up,
+            **({"fell": fell} if cfg.healthy_min_upright is not None else {}),
         }
         reward = sum(terms.values())
         obs = self._obs(data, state.info["logic"])  # the state the step began in, as dm_control observes it
-        return state.replace(data=data, obs=obs, reward=reward, done=blew_up, metrics=metrics, info={**info, "t": t})
+        done = jp.maximum(blew_up, fell)
+        return state.replace(data=data, obs=obs, reward=reward, done=done, metrics=metrics, info={**info, "t": t})
 
     def advance(self, info: dict, t: jax.Array, touching: jax.Array) -> tuple[dict, dict[str, jax.Array]]:
         """The state machine at control step `t` (int32) given whether a hand touches the orb:
