@@ -88,6 +88,7 @@ def test_summary_and_records_derive_fractions_and_escape_times():
         "measure/upright_time": np.array([[0.5] * 4, [0.5, 0.5, 0, 0], [0] * 4]),
         "measure/escaped": np.array([[0, 1, 0, 0], [0, 0, 0, 0], [1, 0, 0, 0]], float),
         "measure/time_in_bowl": np.array([[0.5, 0.5, 0, 0], [0.5] * 4, [0.5, 0, 0, 0]]),
+        "fell": np.array([[0, 0, 0, 0], [0, 1, 0, 0], [0] * 4], float),  # episode 1 ends by a fall
     }
     r = Rollout(
         qpos=np.zeros((e, t + 1, 1)),
@@ -100,6 +101,7 @@ def test_summary_and_records_derive_fractions_and_escape_times():
     )
     s = summarize(r, dt=0.5)
     assert s["ended_early"]["mean"] == pytest.approx(1 / 3)
+    assert s["fell"]["mean"] == pytest.approx(1 / 3)
     assert s["upright_fraction"]["mean"] == pytest.approx((1.0 + 0.5 + 0.0) / 3)
     assert s["escaped"]["mean"] == pytest.approx(2 / 3)
     assert s["time_to_escape"]["mean"] == pytest.approx(0.75)  # (1.0 + 0.5) / 2, the escapers only

@@ -160,8 +160,9 @@ def summarize(r: Rollout, dt: float) -> dict[str, Any]:
     from reset to the episode's last active step; mean forward velocity is that distance over the
     episode's duration; `upright_fraction` is the time upright over the rollout's full length;
     `ended_early` is the fraction of episodes that ended (a fall, an escape: the task's end)
-    before the rollout's last step, so 0 means every episode ran its full length;
-    `time_to_escape` is the time in the bowl over the episodes that left it (NaN if none did).
+    before the rollout's last step, so 0 means every episode ran its full length; `fell` the
+    fraction a fall ended (tasks with a `fell` metric); `time_to_escape` is the time in the bowl
+    over the episodes that left it (NaN if none did).
     """
     mask = r.active
     lengths = r.lengths
@@ -181,6 +182,8 @@ def summarize(r: Rollout, dt: float) -> dict[str, Any]:
         per_episode["mean_forward_velocity"] = distance / np.maximum(lengths * dt, 1e-9)
     if "physics_nan" in r.metrics:
         per_episode["physics_nan"] = (r.metrics["physics_nan"] * mask).sum(1)
+    if "fell" in r.metrics:  # 1 at the step a fall ended the episode (vnl.tasks.falls, run_gaps' failures)
+        per_episode["fell"] = (r.metrics["fell"] * mask).sum(1)
     # Task measures: per-step increments whose episode sums say what the animal did.
     for k, v in r.metrics.items():
         if k.startswith("measure/"):
