@@ -44,12 +44,8 @@ from curriculum import records, vnl
 
 def train(run: Path, args: argparse.Namespace) -> None:
     """`vnl train` into `run` unless it finished (its config's ppo.num_timesteps); resumed if it stopped."""
-    import yaml
-
-    config = run / "config.yaml"
-    total = yaml.safe_load(config.read_text())["ppo"]["num_timesteps"] if config.is_file() else math.inf
     settings = [args.env, "--preset", args.preset, "--seed", str(args.seed), "--no-video"]
-    curriculum.train(run, total, settings, args.compile_cache)
+    curriculum.train(run, None, settings, args.compile_cache)
 
 
 def newest(run: Path, step: int | None) -> int:

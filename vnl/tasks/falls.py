@@ -57,8 +57,12 @@ def fall_terms(config: FallRules, upright_cosine: jax.Array, ok: jax.Array) -> t
     return terms, fell
 
 
+def fell_metric(config: FallRules, fell: jax.Array) -> dict[str, jax.Array]:
+    """{"fell": fell} when the config has a fall rule, else {}: the metric beside the reward terms."""
+    return {"fell": fell} if config.healthy_min_upright is not None else {}
+
+
 def zero_metrics(config: FallRules) -> dict[str, jax.Array]:
     """The metrics `fall_terms` adds (`reward/healthy`, `fell`), zero, for a task's `reset`."""
     terms, fell = fall_terms(config, jp.ones((), jp.float32), jp.zeros((), jp.float32))
-    out = {f"reward/{k}": v for k, v in terms.items()}
-    return out | ({"fell": fell} if config.healthy_min_upright is not None else {})
+    return {f"reward/{k}": v for k, v in terms.items()} | fell_metric(config, fell)

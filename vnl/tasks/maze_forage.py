@@ -70,7 +70,7 @@ from vnl.errors import VnlError
 from vnl.quiet_mjx import mjx
 from vnl.tasks.base import WalkerTask, WalkerTaskConfig, build_walker, check_walker, compile_world, spawn_height
 from vnl.tasks.contract import State
-from vnl.tasks.falls import FallRules, fall_terms, zero_metrics
+from vnl.tasks.falls import FallRules, fall_terms, fell_metric, zero_metrics
 from vnl.tasks.touch import TouchGeoms
 
 MAX_SPEED = 3.0  # m/s: the fastest a walker's part moves, for the collision window's check
@@ -254,7 +254,7 @@ class MazeForage(WalkerTask):
             "targets_left": jp.sum(~collected).astype(jp.float32),
             "physics_nan": blew_up,
             **{f"reward/{k}": v for k, v in fall.items()},
-            **({"fell": fell} if cfg.healthy_min_upright is not None else {}),
+            **fell_metric(cfg, fell),
         }
         info = {**state.info, "collected": collected, "visited": visited}
         obs = self._obs(data, layout, collected)

@@ -85,7 +85,7 @@ from vnl.tasks.base import (
     spawn_height,
 )
 from vnl.tasks.contract import State
-from vnl.tasks.falls import FallRules, fall_terms, zero_metrics
+from vnl.tasks.falls import FallRules, fall_terms, fell_metric, zero_metrics
 from vnl.tasks.touch import TouchGeoms
 
 PRE_TOUCH, TOUCHED_ONCE, TOUCHED_TWICE, TOUCHED_TOO_SOON, NO_SECOND_TOUCH = range(5)
@@ -268,7 +268,7 @@ class TwoTouch(WalkerTask):
             "task_logic": info["logic"].astype(jp.float32),
             "hand_distance": self.hand_distance(data),
             "physics_nan": blew_up,
-            **({"fell": fell} if cfg.healthy_min_upright is not None else {}),
+            **fell_metric(cfg, fell),
         }
         reward = sum(terms.values())
         obs = self._obs(data, state.info["logic"])  # the state the step began in, as dm_control observes it
