@@ -194,7 +194,8 @@ vnl/train/presets/ (2026-11-26): the move changed no preset, and a later edit of
 task): no cpu row changed; gpu and tiny rows gained the rules and cameras the cpu rows had.
 2026-11-28: rodent_imitate steps with 8 Newton and line-search iterations (was 4), all presets.
 2026-11-28: suites gained env_config.reward_scales (null: every task's reward as it is).
-2026-11-29: maze forage and two-touch gained the fall rules (vnl.tasks.falls), off: null and 0.0."""
+2026-11-29: maze forage and two-touch gained the fall rules (vnl.tasks.falls), off: null and 0.0.
+2026-11-29: every preset gained `algorithm: ppo` and the `sac` section (vnl.ppo.sac), unused by PPO."""
 
 
 @pytest.mark.parametrize("name", sorted(RESOLVED))

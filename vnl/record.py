@@ -35,6 +35,7 @@ from vnl.errors import VnlError
 from vnl.policy import LoadedRun
 from vnl.ppo.networks import ACTIVATIONS, make_network
 from vnl.ppo.recurrent import make_recurrent_networks
+from vnl.ppo.sac import q_activity
 from vnl.recording import behaviour, model
 from vnl.recording.netcdf import write  # noqa: F401 (`vnl.record.write`, the name the tutorials use)
 from vnl.rollout import run_episodes
@@ -77,7 +78,9 @@ def network_activity(
     `vnl.train.frozen_decoder`) adds the decoder's layers: `policy_decoder_intention` (the latent
     it read: the action × `decoder.latent_scale`), `policy_decoder_hidden_<i>`,
     `policy_decoder_output` and `body_action`, the action the decoder gave the body (a recording
-    stores it as `action`, and the policy's own as `latent_action`).
+    stores it as `action`, and the policy's own as `latent_action`). A soft actor-critic run
+    (`algorithm: sac`) has the policy's layers and, as `value_hidden_<i>`, its first Q network's
+    layers at the chosen action, and as `value_output` min(Q1, Q2) there (`vnl.ppo.sac.q_activity`).
     """
     if run.config.network.core is not None:
         out, core = _recurrent_activity(run, obs, key, deterministic, core)
@@ -90,6 +93,8 @@ def network_activity(
     if run.config.network.architecture == "intention":
         out = _intention_activity(network, normalizer, policy_params, obs, key, deterministic)
         nets = nets[1:]
+    if run.config.algorithm == "sac":  # its critic reads the action too (below)
+        nets = nets[:1]
     for prefix, net, params in nets:
         result, dense = _dense_outputs(net.apply, normalizer, params, obs)
         # Brax's MLP layers are hidden_0..hidden_N; a `normal` policy's location layer
@@ -100,6 +105,11 @@ def network_activity(
         out[f"{prefix}_output"] = dense[names[-1]] if prefix == "policy" else result
         if prefix == "policy":
             out["action"] = _action(network.parametric_action_distribution, result, key, deterministic)
+    if run.config.algorithm == "sac":
+        dense, value = q_activity(run.config, run.env, normalizer, value_params, obs, out["action"])
+        hidden = sorted(dense, key=lambda n: int(n.split("_")[-1]))[:-1]  # the last layer is Q1
+        out.update({f"value_{name}": act(dense[name]) for name in hidden})
+        out["value_output"] = value
     return _with_decoder(run, out, obs), core
 
 

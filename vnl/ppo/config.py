@@ -129,6 +129,47 @@ class PPOConfig:
 
 
 @dataclasses.dataclass(frozen=True)
+class SACConfig:
+    """Soft actor-critic's own hyperparameters (`algorithm: sac`, `vnl.ppo.sac`; names as in
+    `brax.training.agents.sac.train`). The run's sizes stay in `ppo`: num_timesteps, num_envs,
+    num_evals, num_eval_envs, episode_length, action_repeat, deterministic_eval and
+    normalize_observations; the networks in `network` (the policy's `policy_hidden_layer_sizes`,
+    the two Q networks' `value_hidden_layer_sizes`).
+
+    Each training step steps every env once (`ppo.num_envs` transitions into the replay buffer),
+    then makes `grad_updates_per_step` updates of `batch_size` transitions each, once the buffer
+    holds `min_replay_size`: the update-to-data ratio is grad_updates_per_step / ppo.num_envs
+    updates per env step."""
+
+    learning_rate: float = 3e-4
+    discounting: float = 0.99
+    reward_scaling: float = 1.0
+    tau: float = 0.005  # the target Q networks' step towards the Q networks after each update
+    batch_size: int = 256
+    grad_updates_per_step: int = 8
+    # Checkpoints hold the buffer, (max_replay_size, 2 x observation + action + 3) float32, so that
+    # a resumed run is the run never stopped; rundir's disk check counts it.
+    max_replay_size: int = 2**17
+    min_replay_size: int = 8192
+
+    def validate(self) -> None:
+        for key, most in (("batch_size", MAX_ENVS), ("grad_updates_per_step", 10**4), ("max_replay_size", 2**26)):
+            if not 1 <= getattr(self, key) <= most:
+                raise VnlError(f"{key} must be in 1..{most:,}, got {getattr(self, key):,}")
+        if not 0 <= self.min_replay_size <= self.max_replay_size:
+            raise VnlError(
+                f"min_replay_size must be in 0..max_replay_size ({self.max_replay_size:,}), "
+                f"got {self.min_replay_size:,}"
+            )
+        for key in ("learning_rate", "reward_scaling"):
+            if not getattr(self, key) > 0:
+                raise VnlError(f"{key} must be > 0, got {getattr(self, key)}")
+        for key in ("discounting", "tau"):
+            if not 0 < getattr(self, key) <= 1:
+                raise VnlError(f"{key} must be in (0, 1], got {getattr(self, key)}")
+
+
+@dataclasses.dataclass(frozen=True)
 class NetworkConfig:
     """Brax's PPO policy and value networks: MLP sizes, and with `vision.enabled` the CNN that
     encodes each `pixels/` observation before the MLP (Brax's `networks_vision`; NatureCNN by
@@ -257,6 +298,12 @@ class RunSettings(Protocol):
 
     @property
     def network(self) -> NetworkConfig: ...
+
+    @property
+    def algorithm(self) -> str: ...
+
+    @property
+    def sac(self) -> SACConfig: ...
 
     @property
     def randomize(self) -> Any: ...

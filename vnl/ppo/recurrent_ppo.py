@@ -35,6 +35,7 @@ from brax.training.agents.ppo.losses import compute_gae
 from vnl.ppo.intention_ppo import IntentionPPOLoop
 from vnl.ppo.loop import PPOLoop, TrainingState
 from vnl.ppo.recurrent import RecurrentPPONetworks, make_recurrent_networks
+from vnl.ppo.sac import SACLoop
 
 
 def sample(dist: Any, logits: Any, key: jax.Array, deterministic: bool) -> tuple[jax.Array, dict[str, Any]]:
@@ -249,8 +250,10 @@ class RecurrentPPOLoop(PPOLoop):
 
 
 def make_ppo_loop(env: Any, config: Any, training_steps_per_epoch: int | None = None) -> PPOLoop:
-    """`RecurrentPPOLoop` when `config.network.core` is set, `IntentionPPOLoop` for
-    `network.architecture: intention`, else Brax's `PPOLoop`."""
+    """`SACLoop` for `algorithm: sac`, `RecurrentPPOLoop` when `config.network.core` is set,
+    `IntentionPPOLoop` for `network.architecture: intention`, else Brax's `PPOLoop`."""
+    if getattr(config, "algorithm", "ppo") == "sac":
+        return SACLoop(env, config, training_steps_per_epoch)
     if config.network.core is not None:
         return RecurrentPPOLoop(env, config, training_steps_per_epoch)
     cls = IntentionPPOLoop if config.network.architecture == "intention" else PPOLoop

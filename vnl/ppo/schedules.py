@@ -14,10 +14,19 @@ import optax
 from vnl.ppo.config import RunSettings
 
 
+def env_steps_per_training_step(config: RunSettings) -> int:
+    """Env steps of one training step: PPO's batch (`PPOConfig.env_steps_per_training_step`), or
+    one step of every env for soft actor-critic (`algorithm: sac`)."""
+    p = config.ppo
+    if getattr(config, "algorithm", "ppo") == "sac":
+        return p.num_envs * p.action_repeat
+    return p.env_steps_per_training_step
+
+
 def epoch_length(config: RunSettings) -> int:
     """Training steps per epoch (between two evaluations), as Brax computes it."""
     p = config.ppo
-    return math.ceil(p.num_timesteps / (max(p.num_evals - 1, 1) * p.env_steps_per_training_step))
+    return math.ceil(p.num_timesteps / (max(p.num_evals - 1, 1) * env_steps_per_training_step(config)))
 
 
 KL_RATE_RANGE = (1e-5, 1e-2)  # the learning rate's bounds with `ppo.desired_kl` (Brax's defaults)
@@ -44,4 +53,4 @@ def current_learning_rate(rate: float | optax.Schedule, opt_state: Any) -> jax.A
     return jp.asarray(rate(count), jp.float32)
 
 
-__all__ = ["KL_RATE_RANGE", "current_learning_rate", "epoch_length", "learning_rate"]
+__all__ = ["KL_RATE_RANGE", "current_learning_rate", "env_steps_per_training_step", "epoch_length", "learning_rate"]

@@ -27,6 +27,7 @@ from vnl.ppo.config import (  # noqa: F401 - PPO's settings, part of a run's con
     MAX_STEPS_PER_TRAINING_STEP,
     NetworkConfig,
     PPOConfig,
+    SACConfig,
     intention_without_reference,
 )
 from vnl.train import presets
@@ -167,6 +168,10 @@ class TrainConfig:
     init: InitConfig = InitConfig()  # warm start from another run (vnl.train.warm_start)
     curriculum: tuple[StageConfig, ...] = ()  # stages of env_config overrides (vnl.train.curriculum)
     decoder: DecoderConfig = DecoderConfig()  # act through another run's frozen decoder (vnl.train.frozen_decoder)
+    # The learner: Brax's PPO (vnl.ppo.loop), or soft actor-critic from a replay buffer (vnl.ppo.sac,
+    # its hyperparameters in `sac`; docs/how-to/sac.md).
+    algorithm: Literal["ppo", "sac"] = "ppo"
+    sac: SACConfig = SACConfig()
 
     def __post_init__(self) -> None:
         # A frozen config must not hold a dict someone else can change (or that it shares).
@@ -194,6 +199,32 @@ class TrainConfig:
             self._validate_decoder()
         if self.network.architecture == "intention":
             self._validate_intention()
+        if self.algorithm == "sac":
+            self._validate_sac(env_config)
+
+    def _validate_sac(self, env_config: Any) -> None:
+        """Soft actor-critic trains a feed-forward policy on a flat observation, one env, one stage."""
+        p = self.ppo
+        unsupported = {
+            "--vision (its networks read a flat observation)": self.vision.enabled,
+            "network.core (a feed-forward policy and Q networks)": self.network.core is not None,
+            f"network.architecture {self.network.architecture}": self.network.architecture != "brax",
+            "a suite of tasks": isinstance(env_config, SuiteConfig),
+            "a curriculum": bool(self.curriculum),
+            "a warm start (--init-from)": self.init.run is not None,
+            "decoder.run": self.decoder.run is not None,
+            "randomize": self.randomize.enabled,
+            "ppo.learning_rate_final (PPO's schedule)": p.learning_rate_final is not None,
+            "ppo.desired_kl (PPO's schedule)": p.desired_kl is not None,
+        }
+        refused = [name for name, on in unsupported.items() if on]
+        if refused:
+            raise VnlError(f"algorithm sac cannot train with {refused[0]} yet; turn it off or use algorithm ppo")
+        if self.sac.max_replay_size < p.num_envs:
+            raise VnlError(
+                f"sac.max_replay_size ({self.sac.max_replay_size:,}) must hold one step of every env "
+                f"(ppo.num_envs = {p.num_envs:,})"
+            )
 
     def _validate_suite(self, env_config: SuiteConfig) -> None:
         """A suite trains one flat-observation network on all its tasks at once (`vnl.envs.suite`)."""
@@ -293,6 +324,9 @@ class TrainConfig:
         values = {k: v for k, v in config_lib.to_dict(self).items() if k != "log"}
         if self.decoder == DecoderConfig():
             values.pop("decoder")
+        if self.algorithm == "ppo" and self.sac == SACConfig():  # runs from before SAC keep their hash
+            values.pop("algorithm")
+            values.pop("sac")
         return hashlib.sha256(yaml.safe_dump(values, sort_keys=True).encode()).hexdigest()[:16]
 
     def resolved_env_config(self) -> Any:

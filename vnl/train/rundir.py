@@ -22,6 +22,7 @@ from vnl.errors import VnlError
 from vnl.io import checkpoint, layout, runlock
 from vnl.io import metrics as metrics_io
 from vnl.ppo import recurrent
+from vnl.ppo.sac import make_q_network, transition_width
 from vnl.tasks.contract import Env
 from vnl.train import distributed
 from vnl.train.config import TrainConfig, resolved
@@ -123,7 +124,7 @@ def written_dirs(config: TrainConfig) -> tuple[str, ...]:
 def checkpoint_bytes(config: TrainConfig, env: Env, compact: bool = True) -> int:
     """Estimated size of one checkpoint, from shapes only (nothing is compiled): every training
     env's state (`env_state_bytes`) and the parameters three times (params and Adam's two moments)
-    plus once more in params/."""
+    plus once more in params/; a SAC run's networks and replay buffer (`_sac_state_bytes`)."""
     network = recurrent.make_networks(config, env)
     key = jax.ShapeDtypeStruct((2,), np.uint32)
     if recurrent.is_recurrent(config.network):
@@ -131,7 +132,18 @@ def checkpoint_bytes(config: TrainConfig, env: Env, compact: bool = True) -> int
     else:
         params = jax.eval_shape(lambda k: (network.policy_network.init(k), network.value_network.init(k)), key)
     n_params = sum(_nbytes(x) for x in jax.tree.leaves(params))
+    if config.algorithm == "sac":
+        return config.ppo.num_envs * env_state_bytes(env, compact) + _sac_state_bytes(config, env, params[0], key)
     return config.ppo.num_envs * env_state_bytes(env, compact) + 4 * n_params
+
+
+def _sac_state_bytes(config: TrainConfig, env: Env, policy: Any, key: Any) -> int:
+    """A SAC run's training state: the policy 4 times (params, Adam's moments, params/), the Q
+    networks 5 times (the same and the target), the replay buffer (float32 rows)."""
+    q = jax.eval_shape(make_q_network(config, env).init, key)
+    width = transition_width(env.observation_size, env.action_size)
+    tree_bytes = [sum(_nbytes(x) for x in jax.tree.leaves(t)) for t in (policy, q)]
+    return 4 * tree_bytes[0] + 5 * tree_bytes[1] + 4 * config.sac.max_replay_size * width
 
 
 def env_state_bytes(env: Env, compact: bool = True) -> int:
