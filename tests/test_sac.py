@@ -112,7 +112,6 @@ def test_what_sac_cannot_train_is_refused_before_compiling(tmp_path, capsys):
         ({"vision": {"enabled": True}}, "--vision"),
         ({"network": {"core": "lstm"}}, "network.core"),
         ({"randomize": {"enabled": True}}, "randomize"),
-        ({"ppo": {"learning_rate_final": 1e-5}}, "learning_rate_final"),
         ({"sac": {"max_replay_size": 8, "min_replay_size": 0}}, "must hold one step of every env"),
         ({"sac": {"min_replay_size": 10**6}}, "min_replay_size"),
         ({"sac": {"tau": 0.0}}, "tau"),
@@ -138,3 +137,31 @@ def test_a_ppo_config_keeps_its_hash_from_before_sac():
     before = {k: v for k, v in values.items() if k not in ("log", "decoder", "algorithm", "sac")}
     assert ppo.content_hash() == hashlib.sha256(yaml.safe_dump(before, sort_keys=True).encode()).hexdigest()[:16]
     assert config().content_hash() != ppo.content_hash()
+
+
+def test_the_side_by_side_reads_each_learner_within_its_budget_and_the_docs_show_it(tmp_path):
+    """benchmarks/learners.py: a learner's row is its last evaluation within the wall-clock budget
+    (the one after it, past the budget, is left out), its best within it; the docs' hook renders it."""
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    sys.path.insert(0, str(root / "benchmarks"))
+    import learners
+
+    run = tmp_path / "ant_run-sac"
+    run.mkdir()
+    vx = "eval/mean_forward_velocity"
+    recs = [(0, 10, -0.1), (1000, 200, 2.0), (2000, 590, 1.5), (3000, 700, 3.0)]  # step, wall s, vx
+    lines = [{"step": s, "wall_time": w, vx: v, "eval/upright_fraction": 1.0} for s, w, v in recs]
+    (run / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in lines))
+    row = learners.row("ant_run", "sac", run, minutes=10)
+    assert row["steps"] == 2000 and row["minutes"] == 9.8 and row["last"][vx] == 1.5
+    assert row["untrained"][vx] == -0.1 and row["best"] == {"step": 1000, "minutes": 3.3, vx: 2.0}
+    assert row["curve"]["step"] == [0, 1000, 2000]
+    entry = {"measures": learners.MEASURES["run"], "minutes_budget": 10, "seed": 0, "rows": [row], "command": "c"}
+    entry |= {"commit": "abc", "machine": "m", "date": "d", "alongside": "nothing", "sac_settings": ["x=1"]}
+    text = learners.learners_table({"ant_run": entry})
+    assert "| sac | 2,000 | 9.8 | -0.10 → +1.50 | 1.00 → 1.00 | +2.00 (1,000, 3.3) |" in text
+    docs = json.loads((root / "docs" / "results" / "learners.json").read_text())
+    assert set(docs) >= {"ant_run"} and {r["learner"] for r in docs["ant_run"]["rows"]} == {"ppo", "sac"}

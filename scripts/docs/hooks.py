@@ -6,13 +6,16 @@ marker on a line of its own:
   step, episode, description), each linked to its reference page;
 - `<!-- vnl:results -->`: what each env's `cpu` preset learns and how long it takes, from
   docs/results/results.json, each linked to its result card;
-- `<!-- vnl:presets -->`: the generic presets (`cpu`, `gpu`, `tiny`) side by side, where they differ.
+- `<!-- vnl:presets -->`: the generic presets (`cpu`, `gpu`, `tiny`) side by side, where they differ;
+- `<!-- vnl:learners -->`: PPO against SAC on the same env and budget, from
+  docs/results/learners.json (benchmarks/learners.py writes it).
 
 An unknown `vnl:` marker fails the build.
 """
 
 from __future__ import annotations
 
+import json
 import posixpath
 import re
 import sys
@@ -41,7 +44,33 @@ def table(name: str, page_path: str, docs: Path) -> str:
     if name == "results":
         link = _relative(page_path, "results/{env}.md")
         return results.expect_table(results.load(docs / "results" / "results.json"), link=link)
-    raise ValueError(f"{page_path}: unknown marker <!-- vnl:{name} --> (known: envs, presets, results)")
+    if name == "learners":
+        return learners_table(json.loads((docs / "results" / "learners.json").read_text()))
+    raise ValueError(f"{page_path}: unknown marker <!-- vnl:{name} --> (known: envs, presets, results, learners)")
+
+
+def learners_table(entries: dict[str, Any]) -> str:
+    """One table per env of docs/results/learners.json: each learner's last evaluation within the
+    budget (untrained -> last), its best, and where the numbers come from."""
+    out: list[str] = []
+    for env, e in entries.items():
+        measures = e["measures"]
+        names = " | ".join(f"{name} (untrained → last)" for name, _, _ in measures)
+        out += [f"**{env}**, {e['minutes_budget']:g} minutes each, seed {e['seed']}:", ""]
+        out += [f"| learner | env steps | minutes | {names} | best {measures[0][0]} (step, minutes) |"]
+        out += ["|" + "---|" * (len(measures) + 4)]
+        for r in e["rows"]:
+            cells = " | ".join(f"{r['untrained'][k]:{spec}} → {r['last'][k]:{spec}}" for _, k, spec in measures)
+            b = r["best"]
+            best = f"{b[measures[0][1]]:{measures[0][2]}} ({b['step']:,}, {b['minutes']})"
+            out.append(f"| {r['learner']} | {r['steps']:,} | {r['minutes']} | {cells} | {best} |")
+        out += [
+            "",
+            f"*`{e['command']}`, commit {e['commit']}, {e['machine']}, {e['date']}; alongside: "
+            f"{e['alongside']}; SAC settings: {', '.join(e['sac_settings'])}.*",
+            "",
+        ]
+    return "\n".join(out)
 
 
 def expand(markdown: str, page_path: str, docs: Path) -> str:

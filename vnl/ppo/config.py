@@ -133,8 +133,9 @@ class SACConfig:
     """Soft actor-critic's own hyperparameters (`algorithm: sac`, `vnl.ppo.sac`; names as in
     `brax.training.agents.sac.train`). The run's sizes stay in `ppo`: num_timesteps, num_envs,
     num_evals, num_eval_envs, episode_length, action_repeat, deterministic_eval and
-    normalize_observations; the networks in `network` (the policy's `policy_hidden_layer_sizes`,
-    the two Q networks' `value_hidden_layer_sizes`).
+    normalize_observations (its other keys, PPO's batch and schedules, are unused, so a preset made
+    for PPO trains SAC); the networks in `network` (the policy's `policy_hidden_layer_sizes`, the
+    two Q networks' `value_hidden_layer_sizes`, `activation`, the action distribution).
 
     Each training step steps every env once (`ppo.num_envs` transitions into the replay buffer),
     then makes `grad_updates_per_step` updates of `batch_size` transitions each, once the buffer

@@ -214,8 +214,6 @@ class TrainConfig:
             "a warm start (--init-from)": self.init.run is not None,
             "decoder.run": self.decoder.run is not None,
             "randomize": self.randomize.enabled,
-            "ppo.learning_rate_final (PPO's schedule)": p.learning_rate_final is not None,
-            "ppo.desired_kl (PPO's schedule)": p.desired_kl is not None,
         }
         refused = [name for name, on in unsupported.items() if on]
         if refused:
