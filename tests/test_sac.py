@@ -51,7 +51,9 @@ def quiet(_: str) -> None:
 @pytest.fixture(scope="module")
 def sac_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("sac") / "run"
-    trainer.train(config(), out, say=quiet)
+    said: list[str] = []
+    trainer.train(config(), out, say=said.append)
+    assert any("training test_point (preset tiny, soft actor-critic) on 1" in line for line in said), said
     return out
 
 

@@ -225,7 +225,9 @@ class Session:
         )
         loop = self.loop
         self.say(
-            f"[vnl] {'resuming' if restored else 'training'} {config.env} (preset {config.preset}) on "
+            f"[vnl] {'resuming' if restored else 'training'} {config.env} (preset {config.preset}"
+            + (", soft actor-critic" if config.algorithm == "sac" else "")
+            + ") on "
             f"{loop.n_devices} {jax.default_backend()} device(s)"
             + (f" on each of {loop.process_count} processes" if loop.process_count > 1 else "")
             + f", physics {self.worlds.env(0).unwrapped.physics.describe()} -> {self.run_dir}"
