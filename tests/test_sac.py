@@ -4,6 +4,7 @@ evaluated and recorded like a PPO run, and refuses what it cannot train before c
 
 import hashlib
 import json
+import shutil
 
 import jax
 import jax.numpy as jp
@@ -121,6 +122,8 @@ def test_what_sac_cannot_train_is_refused_before_compiling(tmp_path, capsys):
     ):
         with pytest.raises(VnlError, match=match):
             train_config.build("test_point", "tiny", file_values={"algorithm": "sac", **values})
+    with pytest.raises(VnlError, match="warm start"):
+        train_config.build("test_point", "tiny", file_values={"algorithm": "sac", "init": {"run": str(tmp_path)}})
     with pytest.raises(VnlError, match="suite"):
         train_config.build("test_suite", "tiny", file_values={"algorithm": "sac"})
     argv = ["train", "test_point", "--preset", "tiny", "--out", str(tmp_path / "r"), "--no-video"]
@@ -167,3 +170,38 @@ def test_the_side_by_side_reads_each_learner_within_its_budget_and_the_docs_show
     assert "| sac | 2,000 | 9.8 | -0.10 → +1.50 | 1.00 → 1.00 | +2.00 (1,000, 3.3) |" in text
     docs = json.loads((root / "docs" / "results" / "learners.json").read_text())
     assert set(docs) >= {"ant_run"} and {r["learner"] for r in docs["ant_run"]["rows"]} == {"ppo", "sac"}
+
+
+STAGES = [
+    {"name": "near", "steps": 2 * K, "env_config": {"target": 0.5, "episode_length": 20}},
+    {"name": "far", "steps": 2 * K, "env_config": {"target": 1.0, "episode_length": 40}},
+]
+
+
+@pytest.mark.slow
+def test_a_sac_curriculum_hands_on_its_replay_buffer_and_resumes_bit_exact_inside_a_stage(tmp_path):
+    values = {
+        "algorithm": "sac",
+        "ppo": {"num_envs": ENVS, "num_evals": 5, "num_eval_envs": 16, "episode_length": None},
+        "sac": {"batch_size": 64, "grad_updates_per_step": GRAD_UPDATES, "max_replay_size": 16384},
+        "network": {"policy_hidden_layer_sizes": [32, 32], "value_hidden_layer_sizes": [64, 64]},
+        "curriculum": STAGES,
+    }
+    values["sac"]["min_replay_size"] = MIN_REPLAY
+    out = tmp_path / "run"
+    trainer.train(train_config.build("test_point", "tiny", file_values=values), out, say=quiet)
+    records = rows(out)
+    assert [r["curriculum/stage"] for r in records] == [0, 0, 0, 1, 1]
+    assert [r["eval/avg_episode_length"] for r in records] == [20, 20, 20, 40, 40]
+    _, state, _ = checkpoint.load_train_state(out)
+    # One buffer through both stages: each stage adds 2 K = 10,016 transitions; a buffer emptied at the
+    # switch would hold 10,016 at the end, the one handed on is full.
+    assert int(state[".training.replay.insert_position"]) == 16384 and int(state[".curriculum_stage"]) == 1
+    steps = [r["step"] for r in records]
+    copy = tmp_path / "copy"
+    shutil.copytree(out, copy)
+    trainer.resume(copy, from_step=steps[3], say=quiet)  # inside the second stage
+    _, again, _ = checkpoint.load_train_state(copy)
+    assert state.keys() == again.keys()
+    for k in state:
+        np.testing.assert_array_equal(state[k], again[k], err_msg=k)

@@ -203,14 +203,14 @@ class TrainConfig:
             self._validate_sac(env_config)
 
     def _validate_sac(self, env_config: Any) -> None:
-        """Soft actor-critic trains a feed-forward policy on a flat observation, one env, one stage."""
+        """Soft actor-critic trains a feed-forward policy on a flat observation of one env (a
+        curriculum's stages hand on the replay buffer with the rest of the training state)."""
         p = self.ppo
         unsupported = {
             "--vision (its networks read a flat observation)": self.vision.enabled,
             "network.core (a feed-forward policy and Q networks)": self.network.core is not None,
             f"network.architecture {self.network.architecture}": self.network.architecture != "brax",
             "a suite of tasks": isinstance(env_config, SuiteConfig),
-            "a curriculum": bool(self.curriculum),
             "a warm start (--init-from)": self.init.run is not None,
             "decoder.run": self.decoder.run is not None,
             "randomize": self.randomize.enabled,
