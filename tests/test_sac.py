@@ -110,7 +110,7 @@ def test_the_checkpoint_estimate_counts_the_replay_buffer():
     assert grown == 4 * (8192 - 1024) * transition_width(env.observation_size, env.action_size)
 
 
-def test_what_sac_cannot_train_is_refused_before_compiling(tmp_path, capsys):
+def test_what_sac_cannot_train_is_refused_before_compiling(sac_run, tmp_path, capsys):
     for values, match in (
         ({"vision": {"enabled": True}}, "--vision"),
         ({"network": {"core": "lstm"}}, "network.core"),
@@ -122,8 +122,9 @@ def test_what_sac_cannot_train_is_refused_before_compiling(tmp_path, capsys):
     ):
         with pytest.raises(VnlError, match=match):
             train_config.build("test_point", "tiny", file_values={"algorithm": "sac", **values})
-    with pytest.raises(VnlError, match="warm start"):
-        train_config.build("test_point", "tiny", file_values={"algorithm": "sac", "init": {"run": str(tmp_path)}})
+    with pytest.raises(VnlError, match="--keep-optimizer"):
+        init = {"run": str(sac_run), "keep_optimizer": True}
+        train_config.build("test_point", "tiny", file_values={"algorithm": "sac", "init": init})
     with pytest.raises(VnlError, match="suite"):
         train_config.build("test_suite", "tiny", file_values={"algorithm": "sac"})
     argv = ["train", "test_point", "--preset", "tiny", "--out", str(tmp_path / "r"), "--no-video"]
@@ -205,3 +206,34 @@ def test_a_sac_curriculum_hands_on_its_replay_buffer_and_resumes_bit_exact_insid
     assert state.keys() == again.keys()
     for k in state:
         np.testing.assert_array_equal(state[k], again[k], err_msg=k)
+
+
+@pytest.mark.slow
+def test_a_sac_run_starts_from_a_ppo_runs_policy_and_from_a_sac_runs_critics_too(sac_run, tmp_path):
+    """A warm start (`--init-from`): from PPO the policy and the normalizer (its value network is
+    no Q network: the Q networks start fresh), from SAC the Q and target Q networks as well."""
+    ppo = tmp_path / "ppo"
+    short = {"num_timesteps": 2048, "num_evals": 2, "num_envs": ENVS, "batch_size": ENVS, "num_minibatches": 4}
+    network = {"policy_hidden_layer_sizes": [32, 32], "value_hidden_layer_sizes": [64, 64]}
+    trainer.train(
+        train_config.build("test_point", "tiny", file_values={"ppo": short, "network": network}), ppo, say=quiet
+    )
+    for parent in (ppo, sac_run):
+        child = tmp_path / f"child-of-{parent.name}"
+        values = {"algorithm": "sac", "init": {"run": str(parent)}, "ppo": {"num_timesteps": 16, "num_evals": 2}}
+        values["network"] = network  # the parent's (the CLI takes them from the parent: warm_start.parent_defaults)
+        trainer.train(train_config.build("test_point", "tiny", file_values=values), child, say=quiet)
+        _, theirs, _ = checkpoint.load_train_state(parent)
+        _, ours, _ = checkpoint.load_train_state(child, 0)
+        taken = [
+            k for k in ours if k.startswith((".training.params.", ".training.normalizer_params.", ".training.target_q"))
+        ]
+        same = {k for k in taken if k in theirs and np.array_equal(ours[k], theirs[k])}
+        policy = {k for k in taken if k.startswith(".training.params.policy")}
+        critics = {k for k in taken if k.startswith((".training.params.value", ".training.target_q"))}
+        assert policy and policy <= same
+        assert ".training.normalizer_params.mean" in same
+        if parent == ppo:
+            assert not critics & same  # fresh Q networks (PPO's value has other shapes)
+        else:
+            assert critics and critics <= same

@@ -211,7 +211,7 @@ class TrainConfig:
             "network.core (a feed-forward policy and Q networks)": self.network.core is not None,
             f"network.architecture {self.network.architecture}": self.network.architecture != "brax",
             "a suite of tasks": isinstance(env_config, SuiteConfig),
-            "a warm start (--init-from)": self.init.run is not None,
+            "--keep-optimizer (SAC's three optimizers are not PPO's)": self.init.keep_optimizer,
             "decoder.run": self.decoder.run is not None,
             "randomize": self.randomize.enabled,
         }

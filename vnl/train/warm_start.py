@@ -251,7 +251,7 @@ def apply(loop: Any, state: Any, parent: Parent, keep_optimizer: bool) -> Any:
         )
     training = loop.training(state)
     paths, treedef = jax.tree_util.tree_flatten_with_path(training)
-    prefixes = (PARAMS, NORMALIZER) + ((OPTIMIZER,) if keep_optimizer else ())
+    prefixes = taken(loop.config, parent.config, keep_optimizer)
     leaves, bad = [], []
     for path, leaf in paths:
         name = ".training" + jax.tree_util.keystr(path)
@@ -272,6 +272,17 @@ def apply(loop: Any, state: Any, parent: Parent, keep_optimizer: bool) -> Any:
             f"this run ({'; '.join(bad[:3])}{' ...' if len(bad) > 3 else ''})"
         )
     return loop.with_training(state, jax.tree_util.tree_unflatten(treedef, leaves))
+
+
+def taken(child: TrainConfig, parent: TrainConfig, keep_optimizer: bool) -> tuple[str, ...]:
+    """The training-state arrays (path prefixes) a child takes from its parent. A SAC child
+    (`algorithm: sac`) takes a PPO parent's policy and normalizer (a PPO value network is not a Q
+    network: its Q networks start fresh), a SAC parent's Q and target Q networks too."""
+    if child.algorithm != "sac":
+        return (PARAMS, NORMALIZER) + ((OPTIMIZER,) if keep_optimizer else ())
+    if parent.algorithm == "sac":
+        return (PARAMS, NORMALIZER, ".training.target_q")
+    return (PARAMS + "policy", NORMALIZER)
 
 
 # A `normal` policy's MLP sits under MLP_0 (Brax's PolicyModuleWithStd), a recurrent network's
