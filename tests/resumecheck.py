@@ -25,3 +25,13 @@ def assert_same_as_reference(run: Path, reference: Path, total: int, epoch: int)
     assert final.keys() == want.keys()
     for key in want:
         np.testing.assert_array_equal(final[key], want[key], err_msg=key)
+
+
+def assert_same_final_state(run: Path, reference: Path) -> dict[str, np.ndarray]:
+    """The newest checkpoints of `run` and `reference` hold the same arrays, bit for bit; returns them."""
+    _, want, _ = checkpoint.load_train_state(reference)
+    _, got, _ = checkpoint.load_train_state(run)
+    assert got.keys() == want.keys()
+    for key in want:
+        np.testing.assert_array_equal(got[key], want[key], err_msg=key)
+    return want
