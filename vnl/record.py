@@ -35,14 +35,15 @@ from vnl.errors import VnlError
 from vnl.policy import LoadedRun
 from vnl.ppo.networks import ACTIVATIONS, make_network
 from vnl.ppo.recurrent import make_recurrent_networks
-from vnl.ppo.sac import q_activity
+from vnl.ppo.sac import make_q_network
 from vnl.recording import behaviour, model
 from vnl.recording.netcdf import write  # noqa: F401 (`vnl.record.write`, the name the tutorials use)
 from vnl.rollout import run_episodes
 
 
-def _dense_outputs(apply: Any, *args: Any) -> tuple[jax.Array, dict[str, jax.Array]]:
-    """Calls a Brax network's `apply` and returns (output, {dense layer name: its output})."""
+def _dense_outputs(apply: Any, *args: Any, within: str | None = None) -> tuple[jax.Array, dict[str, jax.Array]]:
+    """Calls a Brax network's `apply` and returns (output, {dense layer name: its output}); with
+    `within`, only the layers of the submodule of that name (e.g. a Q network's first MLP, `MLP_0`)."""
     from flax import linen
 
     captured: dict[str, jax.Array] = {}
@@ -50,7 +51,8 @@ def _dense_outputs(apply: Any, *args: Any) -> tuple[jax.Array, dict[str, jax.Arr
     def interceptor(next_fun: Any, f_args: Any, f_kwargs: Any, context: Any) -> Any:
         out = next_fun(*f_args, **f_kwargs)
         if isinstance(context.module, linen.Dense) and context.method_name == "__call__":
-            captured[context.module.name] = out
+            if within is None or within in context.module.path:
+                captured[context.module.name] = out
         return out
 
     with linen.intercept_methods(interceptor):
@@ -80,7 +82,7 @@ def network_activity(
     `policy_decoder_output` and `body_action`, the action the decoder gave the body (a recording
     stores it as `action`, and the policy's own as `latent_action`). A soft actor-critic run
     (`algorithm: sac`) has the policy's layers and, as `value_hidden_<i>`, its first Q network's
-    layers at the chosen action, and as `value_output` min(Q1, Q2) there (`vnl.ppo.sac.q_activity`).
+    layers at the chosen action, and as `value_output` min(Q1, Q2) there.
     """
     if run.config.network.core is not None:
         out, core = _recurrent_activity(run, obs, key, deterministic, core)
@@ -105,11 +107,12 @@ def network_activity(
         out[f"{prefix}_output"] = dense[names[-1]] if prefix == "policy" else result
         if prefix == "policy":
             out["action"] = _action(network.parametric_action_distribution, result, key, deterministic)
-    if run.config.algorithm == "sac":
-        dense, value = q_activity(run.config, run.env, normalizer, value_params, obs, out["action"])
+    if run.config.algorithm == "sac":  # the first Q network's layers, at the chosen action
+        q_net = make_q_network(run.config, run.env)
+        q, dense = _dense_outputs(q_net.apply, normalizer, value_params, obs, out["action"], within="MLP_0")
         hidden = sorted(dense, key=lambda n: int(n.split("_")[-1]))[:-1]  # the last layer is Q1
         out.update({f"value_{name}": act(dense[name]) for name in hidden})
-        out["value_output"] = value
+        out["value_output"] = jp.min(q, axis=-1)
     return _with_decoder(run, out, obs), core
 
 

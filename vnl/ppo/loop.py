@@ -48,7 +48,13 @@ from vnl.errors import VnlError
 from vnl.ppo import state_arrays, suite_loop
 from vnl.ppo.config import RunSettings
 from vnl.ppo.networks import make_inference_fn, make_network
-from vnl.ppo.schedules import KL_RATE_RANGE, current_learning_rate, epoch_length, learning_rate
+from vnl.ppo.schedules import (
+    KL_RATE_RANGE,
+    current_learning_rate,
+    env_steps_per_training_step,
+    epoch_length,
+    learning_rate,
+)
 
 AXIS = "i"  # the pmap axis over local devices
 
@@ -140,7 +146,7 @@ class PPOLoop:
         self.observation_size = env.observation_size
         self.action_size = env.action_size
         self.training_steps_per_epoch = training_steps_per_epoch or epoch_length(config)
-        self.env_steps_per_training_step = p.env_steps_per_training_step
+        self.env_steps_per_training_step = env_steps_per_training_step(config)
         self.env_steps_per_epoch = self.training_steps_per_epoch * self.env_steps_per_training_step
 
         self.network = self._make_network(env)

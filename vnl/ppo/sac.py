@@ -40,7 +40,6 @@ from brax.training.agents.sac import networks as sac_networks
 from vnl.errors import VnlError
 from vnl.ppo.loop import AXIS, PPOLoop, _normalized_spec
 from vnl.ppo.networks import ACTIVATIONS
-from vnl.ppo.schedules import env_steps_per_training_step, epoch_length
 
 
 @flax.struct.dataclass
@@ -108,10 +107,8 @@ class SACLoop(PPOLoop):
                 f"algorithm sac trains on one device for now; this machine has {jax.device_count()} (set "
                 "CUDA_VISIBLE_DEVICES to one GPU, or use algorithm ppo)"
             )
-        super().__init__(env, config, training_steps_per_epoch or epoch_length(config))
+        super().__init__(env, config, training_steps_per_epoch)
         s = config.sac
-        self.env_steps_per_training_step = env_steps_per_training_step(config)
-        self.env_steps_per_epoch = self.training_steps_per_epoch * self.env_steps_per_training_step
         self.q_network = make_q_network(config, env)
         sac_network = sac_networks.SACNetworks(
             policy_network=self.network.policy_network,
@@ -163,13 +160,12 @@ class SACLoop(PPOLoop):
         env_state, transitions = acting.actor_step(self.env, env_state, policy, key_act, extra_fields=("truncation",))
         transitions = transitions._replace(extras={**transitions.extras, "policy_extras": {}})
         normalizer = running_statistics.update(training.normalizer_params, transitions.observation, pmap_axis_name=AXIS)
-        replay = self.replay.insert(training.replay, transitions)
+        replay, batch = self.replay.sample(self.replay.insert(training.replay, transitions))
         training = training.replace(
             normalizer_params=normalizer,
             replay=replay,
             env_steps=training.env_steps + self.env_steps_per_training_step,
         )
-        replay, batch = self.replay.sample(replay)
         batch = jax.tree.map(lambda x: jp.reshape(x, (s.grad_updates_per_step, -1) + x.shape[1:]), batch)
         ready = self.replay.size(replay) >= s.min_replay_size
 
@@ -180,7 +176,7 @@ class SACLoop(PPOLoop):
         def wait(t: SACTrainingState) -> tuple[SACTrainingState, dict[str, jax.Array]]:
             return t, jax.tree.map(jp.zeros_like, jax.eval_shape(learn, t)[1])
 
-        training, metrics = jax.lax.cond(ready, learn, wait, training.replace(replay=replay))
+        training, metrics = jax.lax.cond(ready, learn, wait, training)
         metrics["replay_size"] = self.replay.size(replay).astype(jp.float32)
         return (training, env_state, new_key), metrics
 
@@ -218,23 +214,3 @@ class SACLoop(PPOLoop):
             "alpha": jp.exp(log_alpha),
         }
         return (t, key), metrics
-
-
-def q_activity(config: Any, env: Any, normalizer: Any, q_params: Any, obs: jax.Array, action: jax.Array) -> Any:
-    """The first Q network's layers on (`obs` (..., O), `action` (..., A)) and the soft value
-    estimate min(Q1, Q2) (...,): ({"hidden_<i>": (..., units)}, value). What `vnl record` keeps of
-    a SAC run's critic as `value_hidden_<i>` and `value_output`."""
-    from flax import linen
-
-    captured: dict[str, jax.Array] = {}
-
-    def interceptor(next_fun: Any, args: Any, kwargs: Any, context: Any) -> Any:
-        out = next_fun(*args, **kwargs)
-        path = context.module.path
-        if isinstance(context.module, linen.Dense) and context.method_name == "__call__" and "MLP_0" in path:
-            captured[context.module.name] = out
-        return out
-
-    with linen.intercept_methods(interceptor):
-        q = make_q_network(config, env).apply(normalizer, q_params, obs, action)
-    return captured, jp.min(q, axis=-1)
