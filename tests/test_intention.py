@@ -203,7 +203,6 @@ def test_bad_intention_configs_are_refused_in_one_line(tmp_path, capsys):
     assert err.count("\n") == 0 and err.startswith("vnl: error:") and "observes none" in err
     assert not (tmp_path / "r").exists()
     for network, match in (
-        ({"core": "lstm"}, "network.core to null"),
         ({"intention_size": 0}, "intention_size"),
         ({"kl_weight": -1.0}, "kl_weight"),
         ({"kl_weight": float("nan")}, "kl_weight"),

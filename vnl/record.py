@@ -33,6 +33,7 @@ import numpy as np
 
 from vnl.errors import VnlError
 from vnl.policy import LoadedRun
+from vnl.ppo.intention_core import latent_noise
 from vnl.ppo.networks import ACTIVATIONS, make_network
 from vnl.ppo.recurrent import make_recurrent_networks
 from vnl.ppo.sac import make_q_network
@@ -76,7 +77,9 @@ def network_activity(
     (`network.architecture: intention`, `vnl.ppo.intention`) has `encoder_hidden_<i>`, the latent's
     `encoder_intention_mean` and `encoder_intention_log_std`, `policy_intention` (the latent its
     decoder read: the mean, or a draw when not `deterministic`), the decoder's `policy_hidden_<i>`,
-    `policy_output`, and the value MLP's layers. A run through a frozen decoder (`decoder.run`,
+    `policy_output`, and the value MLP's layers; with `network.core` (a recurrent decoder,
+    `vnl.ppo.intention_core`) also `policy_core_h`/`_c`, and the value's `value_hidden_<i>`,
+    `value_core_h`/`_c`. A run through a frozen decoder (`decoder.run`,
     `vnl.train.frozen_decoder`) adds the decoder's layers: `policy_decoder_intention` (the latent
     it read: the action × `decoder.latent_scale`), `policy_decoder_hidden_<i>`,
     `policy_decoder_output` and `body_action`, the action the decoder gave the body (a recording
@@ -184,10 +187,15 @@ def _recurrent_activity(
     no_reset = jp.zeros(core["policy"][0].shape[:-1])
     out: dict[str, Any] = {}
     new_core = {}
-    for prefix, net, params in (
-        ("policy", networks.policy_network, policy_params),
-        ("value", networks.value_network, value_params),
-    ):
+    nets = [("value", networks.value_network, value_params)]
+    if run.config.network.architecture == "intention":  # a recurrent decoder (vnl.ppo.intention_core)
+        key, key_latent = jax.random.split(key)
+        noise = latent_noise(key_latent, no_reset.shape, networks.intention_size, deterministic)
+        out, head, new_core["policy"] = networks.policy_activity(normalizer, policy_params, obs, core["policy"], noise)
+        out["action"] = _action(networks.parametric_action_distribution, head, key, deterministic)
+    else:
+        nets.insert(0, ("policy", networks.policy_network, policy_params))
+    for prefix, net, params in nets:
         (result, carry, _), dense = _dense_outputs(net.step, normalizer, params, obs, core[prefix], no_reset)
         hidden = sorted((n for n in dense if n.startswith("hidden_")), key=lambda n: int(n.split("_")[-1]))
         for name in hidden:

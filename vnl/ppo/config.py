@@ -212,6 +212,7 @@ class NetworkConfig:
     # reference part of the observation into a Gaussian latent of `intention_size`, which the
     # decoder MLP (`policy_hidden_layer_sizes`) reads with the rest of the observation; PPO's loss
     # adds `kl_weight` × the latent's KL divergence from N(0, I) (nats, summed over its units).
+    # With `core`, a core of `core_size` units follows the decoder MLP (vnl.ppo.intention_core).
     architecture: Literal["brax", "merel", "intention"] = "brax"
     encoder_hidden_layer_sizes: tuple[int, ...] = (256, 256)
     policy_core_sizes: tuple[int, ...] = (128,)
@@ -275,10 +276,6 @@ class NetworkConfig:
             raise VnlError(f"resnet_features must be in 1..{MAX_LAYER:,} units, got {self.resnet_features}")
 
     def _validate_intention(self) -> None:
-        if self.core is not None:
-            raise VnlError(
-                "network.architecture intention is feed-forward (an MLP encoder and decoder); set network.core to null"
-            )
         sizes = self.encoder_hidden_layer_sizes
         if not sizes or any(s < 1 for s in sizes) or any(s > MAX_LAYER for s in sizes) or len(sizes) > 64:
             raise VnlError(

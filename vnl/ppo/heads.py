@@ -8,6 +8,9 @@ from typing import Any
 import jax
 import jax.numpy as jp
 from brax.training import distribution, networks
+from flax import linen
+
+Carry = tuple[jax.Array, ...]
 
 
 def unit_pixels(x: jax.Array) -> jax.Array:
@@ -41,3 +44,18 @@ def dummy_observation(size: Any) -> Any:
             k: jp.zeros((1,) + tuple(v), jp.uint8 if k.startswith("pixels/") else jp.float32) for k, v in size.items()
         }
     return jp.zeros((1, size), jp.float32)
+
+
+def core_cell(kind: str, size: int, name: str) -> Any:
+    """A recurrent cell of `size` units: flax's LSTM (`kind` "lstm") or GRU, named `name`."""
+    return linen.OptimizedLSTMCell(size, name=name) if kind == "lstm" else linen.GRUCell(size, name=name)
+
+
+def run_cell(cell: Any, kind: str, carry: Carry, x: jax.Array) -> tuple[Carry, jax.Array]:
+    """One step of `core_cell`'s cell: (new carry, output (..., size)); the carry is (c, h) for an
+    LSTM, (h,) for a GRU, each (..., size)."""
+    if kind == "lstm":
+        (c, h), out = cell(carry, x)
+        return (c, h), out
+    h, out = cell(carry[0], x)
+    return (h,), out

@@ -103,20 +103,35 @@ class IntentionNet(linen.Module):
     def __call__(
         self, obs: jax.Array, noise: jax.Array | None = None, latent: jax.Array | None = None
     ) -> tuple[Any, jax.Array, jax.Array]:
+        latent, mean, log_std = self._latent(obs, noise, latent)
+        return self._head(self._decode(latent, obs)), mean, log_std
+
+    def _latent(
+        self, obs: jax.Array, noise: jax.Array | None, latent: jax.Array | None
+    ) -> tuple[jax.Array, jax.Array, jax.Array]:
+        """(the latent the decoder reads, its mean, its log std), each (..., L): see `__call__`."""
         if latent is None:
             mean, log_std = self._encode(obs)
             latent = mean if noise is None else mean + jp.exp(log_std) * noise
         else:
             mean, log_std = latent, jp.zeros_like(latent)
         self.sow("intermediates", "policy_intention", latent)
+        return latent, mean, log_std
+
+    def _decode(self, latent: jax.Array, obs: jax.Array) -> jax.Array:
+        """The decoder MLP's last layer (..., decoder_sizes[-1]) from the latent and the proprioception."""
         x = jp.concatenate([latent, jp.take(obs, jp.asarray(self.proprioception, jp.int32), axis=-1)], axis=-1)
         for i, size in enumerate(self.decoder_sizes):
             x = self.activation(self._dense(size, f"decoder_{i}")(x))
             self.sow("intermediates", f"policy_hidden_{i}", x)
+        return x
+
+    def _head(self, x: jax.Array) -> Any:
+        """Brax's action distribution's parameters from the decoder's last layer."""
         head = self._dense(self.out_size, "policy_head")(x)
         if self.std_size:
             head = with_learned_scale(head, self.std_size, self.noise_std_type, self.init_noise_std)
-        return head, mean, log_std
+        return head
 
     def _encode(self, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
         """The encoder: the latent's (mean, log std), each (..., L), from the reference columns."""

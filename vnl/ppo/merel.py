@@ -38,9 +38,8 @@ import jax.numpy as jp
 from flax import linen
 
 from vnl.ppo.conv import cpu_convolutions
-from vnl.ppo.heads import dummy_observation, unit_pixels, with_learned_scale
+from vnl.ppo.heads import Carry, core_cell, dummy_observation, run_cell, unit_pixels, with_learned_scale
 
-Carry = tuple[jax.Array, ...]
 VALUE_PARTS = ("encoder", "vision_", "core", "value_head")
 """The module's parts stored with the value network's parameters (names start with these)."""
 
@@ -65,18 +64,6 @@ class ResNetEncoder(linen.Module):
         x = linen.relu(x).reshape(x.shape[0], -1)
         x = linen.relu(linen.Dense(self.features, name="features")(x))
         return x.reshape(batch + (self.features,))
-
-
-def _cell(kind: str, size: int, name: str) -> Any:
-    return linen.OptimizedLSTMCell(size, name=name) if kind == "lstm" else linen.GRUCell(size, name=name)
-
-
-def _run_cell(cell: Any, kind: str, carry: Carry, x: jax.Array) -> tuple[Carry, jax.Array]:
-    if kind == "lstm":
-        (c, h), out = cell(carry, x)
-        return (c, h), out
-    h, out = cell(carry[0], x)
-    return (h,), out
 
 
 class MerelNet(linen.Module):
@@ -114,7 +101,8 @@ class MerelNet(linen.Module):
     def __call__(self, obs: Any, carry: dict[str, Carry]) -> tuple[Any, jax.Array, dict[str, Carry]]:
         state, features = self._encode(obs)
         encoded = jp.concatenate(features, axis=-1)
-        core_carry, core_out = _run_cell(_cell(self.core, self.core_size, "core"), self.core, carry["value"], encoded)
+        core = core_cell(self.core, self.core_size, "core")
+        core_carry, core_out = run_cell(core, self.core, carry["value"], encoded)
         self._sow_carry("core", core_carry)
         value = jp.squeeze(linen.Dense(1, name="value_head")(core_out), -1)
         # The policy reads the core without training it (the paper's dashed arrow), plus shortcuts.
@@ -122,7 +110,7 @@ class MerelNet(linen.Module):
         x, policy_carry, parts = policy_in, [], self._split_policy_carry(carry["policy"])
         for i, (size, part) in enumerate(zip(self.policy_core_sizes, parts, strict=True)):
             inputs = policy_in if i == 0 else jp.concatenate([policy_in, x], axis=-1)
-            part, x = _run_cell(_cell(self.core, size, f"policy_core_{i}"), self.core, part, inputs)
+            part, x = run_cell(core_cell(self.core, size, f"policy_core_{i}"), self.core, part, inputs)
             self._sow_carry(f"policy_core_{i}", part)
             policy_carry.extend(part)
         head = linen.Dense(self.out_size, name="policy_head")(x)

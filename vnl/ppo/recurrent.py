@@ -183,7 +183,8 @@ def is_recurrent(net: NetworkConfig) -> bool:
 
 def make_recurrent_networks(config: RunSettings, env: Env) -> Any:
     """Policy and value `RecurrentNetwork`s with the run's sizes, core and action distribution
-    (`RecurrentPPONetworks`), or with `network.architecture: merel` `vnl.ppo.merel.MerelNetworks`."""
+    (`RecurrentPPONetworks`), or with `network.architecture: merel` `vnl.ppo.merel.MerelNetworks`, with
+    `intention` `vnl.ppo.intention_core.RecurrentIntentionNetworks`."""
     net = config.network
     normalize = running_statistics.normalize if config.ppo.normalize_observations else (lambda x, y: x)
     if net.architecture == "merel":
@@ -197,8 +198,14 @@ def make_recurrent_networks(config: RunSettings, env: Env) -> Any:
             "cnn_max_pool": net.cnn_max_pool,
             "cnn_global_pool": net.cnn_pool,
         }
-    dist, out, std = _action_distribution(net, env.action_size)
     common = {"core": net.core, "core_size": net.core_size, "activation": ACTIVATIONS[net.activation], "vision": vision}
+    value = CoreNet(tuple(net.value_hidden_layer_sizes), out_size=1, **common)
+    if net.architecture == "intention":  # its decoder with a core; the value as here
+        from vnl.ppo import intention_core
+
+        value_network = RecurrentNetwork(value, env.observation_size, normalize)
+        return intention_core.make_networks(net, env, normalize, ACTIVATIONS[net.activation], value_network)
+    dist, out, std = _action_distribution(net, env.action_size)
     policy = CoreNet(
         tuple(net.policy_hidden_layer_sizes),
         out_size=out,
@@ -207,7 +214,6 @@ def make_recurrent_networks(config: RunSettings, env: Env) -> Any:
         init_noise_std=net.init_noise_std,
         **common,
     )
-    value = CoreNet(tuple(net.value_hidden_layer_sizes), out_size=1, **common)
     return RecurrentPPONetworks(
         RecurrentNetwork(policy, env.observation_size, normalize),
         RecurrentNetwork(value, env.observation_size, normalize),

@@ -32,6 +32,8 @@ from brax.training import types as brax_types
 from brax.training.agents.ppo import losses as ppo_losses
 from brax.training.agents.ppo.losses import compute_gae
 
+from vnl.ppo.intention import NOISE, kl_divergence
+from vnl.ppo.intention_core import latent_noise
 from vnl.ppo.intention_ppo import IntentionPPOLoop
 from vnl.ppo.loop import PPOLoop, TrainingState
 from vnl.ppo.recurrent import RecurrentPPONetworks, make_recurrent_networks
@@ -69,8 +71,14 @@ def actor_step(
     and the reset flags, for the loss's re-run."""
     normalizer, policy_params, value_params = params
     reset = state.done
-    logits, _, new_carry = networks.step(normalizer, policy_params, value_params, state.obs, carry, reset)
+    latent: dict[str, Any] = {}
+    if hasattr(networks, "intention_size"):  # the intention's latent is drawn with the action (vnl.ppo.intention_core)
+        key, key_latent = jax.random.split(key)
+        latent = {"noise": latent_noise(key_latent, reset.shape, networks.intention_size, deterministic)}
+    logits, _, new_carry = networks.step(normalizer, policy_params, value_params, state.obs, carry, reset, **latent)
     action, policy_extras = sample(networks.parametric_action_distribution, logits, key, deterministic)
+    if latent.get("noise") is not None:
+        policy_extras[NOISE] = latent["noise"]
     nstate = env.step(state, action)
     transition = brax_types.Transition(
         observation=state.obs,
@@ -98,16 +106,19 @@ def recurrent_ppo_loss(
     reward_scaling: float,
     gae_lambda: float,
     clipping_epsilon: float,
+    kl_weight: float | None = None,
 ) -> tuple[jax.Array, dict[str, jax.Array]]:
     """Brax's PPO loss on unrolls `data` (leading axes (B, T)), the networks re-run over time from
-    each unroll's first stored core state with the stored resets."""
+    each unroll's first stored core state with the stored resets (and an intention network at its
+    stored latent draws, plus `kl_weight` × the latent's KL divergence from N(0, I))."""
     dist = networks.parametric_action_distribution
     data = jax.tree.map(lambda x: jp.swapaxes(x, 0, 1), data)  # time first: (T, B, ...)
     core = data.extras["core"]
     resets = core["reset"]
     first = jax.tree.map(lambda c: c[0], core["carry"])
+    latent = {"noise": data.extras["policy_extras"][NOISE]} if kl_weight is not None else {}
     logits, baseline, carry = networks.unroll(
-        normalizer_params, params.policy, params.value, data.observation, first, resets
+        normalizer_params, params.policy, params.value, data.observation, first, resets, **latent
     )
     last = jax.tree.map(lambda x: x[-1], data.next_observation)
     bootstrap_value = networks.bootstrap(
@@ -136,6 +147,11 @@ def recurrent_ppo_loss(
     entropy = jp.mean(dist.entropy(logits, rng))
     entropy_loss = entropy_cost * -entropy
     total_loss = policy_loss + v_loss + entropy_loss
+    extra: dict[str, jax.Array] = {}
+    if kl_weight is not None:
+        mean, log_std = networks.posterior(normalizer_params, params.policy, data.observation)
+        extra["intention_kl"] = jp.mean(kl_divergence(mean, log_std))
+        total_loss = total_loss + kl_weight * extra["intention_kl"]
     new_dist = dist.create_dist(logits)
     old_dist = dist.create_dist(data.extras["policy_extras"]["distribution_params"])
     return total_loss, {
@@ -145,6 +161,7 @@ def recurrent_ppo_loss(
         "entropy_loss": entropy_loss,
         "kl_mean": jp.mean(new_dist.kl_divergence(old_dist)),
         "policy_dist_mean_std": jp.mean(new_dist.scale),
+        **extra,
     }
 
 
@@ -208,7 +225,9 @@ class RecurrentPPOLoop(PPOLoop):
         return ppo_losses.PPONetworkParams(*self.network.init(key))
 
     def _loss_fn(self) -> Any:
-        return functools.partial(recurrent_ppo_loss, networks=self.network, **self._loss_settings())
+        net = self.config.network
+        kl = {"kl_weight": net.kl_weight} if net.architecture == "intention" else {}
+        return functools.partial(recurrent_ppo_loss, networks=self.network, **self._loss_settings(), **kl)
 
     def _make_evaluator(self, eval_env: Any, num_eval_envs: int, episode_length: int) -> RecurrentEvaluator:
         p = self.config.ppo

@@ -41,6 +41,11 @@ def wrap(env: Any, decoder: Any, parent: Any) -> LatentActionEnv:
             f"decoder.run {run_dir} trained network.architecture {parent.network.architecture}; a frozen decoder "
             "comes from an intention network (train rodent_imitate with --set network.architecture=intention)"
         )
+    if parent.network.core is not None:
+        raise VnlError(
+            f"decoder.run {run_dir}: its decoder has a recurrent core (network.core {parent.network.core}), and a "
+            "frozen decoder can only be feed-forward so far; use a decoder run trained without network.core"
+        )
     if decoder.config_hash is not None and parent.content_hash() != decoder.config_hash:
         raise VnlError(
             f"decoder.run {run_dir}: its config.yaml changed since this run recorded it (hash "

@@ -1,0 +1,214 @@
+"""The intention network with a recurrent decoder (`network.architecture: intention` with
+`network.core`, vnl.ppo.intention_core): the parameters; PPO's loss re-runs the decoder's core at
+the rollout's latent draws (the ratio is 1) and adds the encoder's KL; the decoder remembers and
+forgets at episode starts; a run trained, resumed bit-exact, recorded, loaded and exported.
+
+The env: test_intention's point mass whose observed target is the reference."""
+
+import json
+
+import jax
+import jax.numpy as jp
+import numpy as np
+import pytest
+import xarray as xr
+from brax.training.acme import running_statistics, specs
+from brax.training.agents.ppo.losses import PPONetworkParams
+from test_intention import ReferencePoint, reference_env  # noqa: F401 (the fixture registers test_point_ref)
+
+from vnl.cli import main
+from vnl.envs import registry
+from vnl.envs.wrappers import wrap_for_training
+from vnl.errors import VnlError
+from vnl.io import checkpoint
+from vnl.policy import RecurrentPolicy, load_policy
+from vnl.ppo import intention
+from vnl.ppo.intention_core import RecurrentIntentionNetworks
+from vnl.ppo.recurrent import make_recurrent_networks
+from vnl.ppo.recurrent_ppo import RecurrentPPOLoop, actor_step, make_ppo_loop, recurrent_ppo_loss, zero_carry
+from vnl.train import config as train_config
+from vnl.train import frozen_decoder, trainer
+
+pytestmark = [pytest.mark.xdist_group("intention"), pytest.mark.usefixtures("point_envs")]
+
+K = 1024
+L = 3
+NETWORK = {
+    "architecture": "intention",
+    "core": "lstm",
+    "core_size": 6,
+    "encoder_hidden_layer_sizes": [16],
+    "intention_size": L,
+    "policy_hidden_layer_sizes": [8],
+    "value_hidden_layer_sizes": [8],
+}
+SETTINGS = {"entropy_cost": 1e-3, "discounting": 0.97, "reward_scaling": 1.0, "gae_lambda": 0.95}
+
+
+def config(network=None, **ppo):
+    values = {
+        "ppo": {"num_timesteps": 2 * K, "num_evals": 3, "learning_rate": 3e-3, "episode_length": None, **ppo},
+        "env_config": {"impl": "c", "episode_length": 12},
+        "network": {**NETWORK, **(network or {})},
+        "log": {"video": False, "progress": False},
+    }
+    return train_config.build("test_point_ref", "tiny", file_values=values)
+
+
+def quiet(_):
+    pass
+
+
+def setup(cfg=None):
+    cfg = cfg or config()
+    env = registry.make("test_point_ref", **cfg.env_config)
+    nets = make_recurrent_networks(cfg, env)
+    normalizer = running_statistics.init_state(specs.Array((env.observation_size,), jp.dtype("float32")))
+    policy, value = nets.init(jax.random.PRNGKey(0))
+    return cfg, env, nets, (normalizer, policy, value)
+
+
+def collect(steps=20, envs=4):
+    """`steps` steps of `envs` envs with the untrained stochastic policy, as training collects them
+    (time-major transitions), with the networks and params."""
+    cfg, env, nets, params = setup()
+    wrapped = wrap_for_training(env, episode_length=cfg.episode_length())
+    key = jax.random.PRNGKey(3)
+    state = wrapped.reset(jax.random.split(key, envs))
+
+    def one(c, k):
+        s, carry = c
+        s, carry, transition = actor_step(wrapped, nets, params, s, carry, k, extra_fields=("truncation",))
+        return (s, carry), transition
+
+    _, data = jax.lax.scan(one, (state, zero_carry(nets, (envs,))), jax.random.split(key, steps))
+    return nets, params, data
+
+
+def test_the_decoder_has_a_core_between_its_mlp_and_the_head_and_the_value_its_own():
+    cfg, env, nets, (_, policy, value) = setup()
+    assert isinstance(nets, RecurrentIntentionNetworks)
+    assert isinstance(make_ppo_loop(env, cfg), RecurrentPPOLoop)
+    p = policy["params"]
+    assert set(p) == {"encoder_0", "intention_mean", "intention_log_std", "decoder_0", "decoder_core", "policy_head"}
+    assert p["encoder_0"]["kernel"].shape == (1, 16)  # the reference alone
+    assert p["decoder_0"]["kernel"].shape == (L + 2, 8)  # the latent and the other columns
+    assert p["policy_head"]["kernel"].shape == (6, 2)  # from the core's 6 units
+    assert set(value["params"]) == {"encoder", "core", "output"}
+    carry = nets.initial_carry((5,))
+    assert [c.shape for c in carry["policy"]] == [(5, 6), (5, 6)]
+    gru = setup(config({"core": "gru"}))[2]
+    assert [c.shape for c in gru.initial_carry((5,))["policy"]] == [(5, 6)]
+
+
+def test_the_loss_reruns_the_decoder_at_the_stored_draws_and_adds_the_kl():
+    """Re-run over unrolls that cross episode starts, from the first stored state with the stored
+    resets and latent draws, the policy gives the rollout's log-probabilities back; at the mean
+    latent it does not. The loss adds kl_weight × the encoder's KL, computed here by hand."""
+    nets, params, data = collect()
+    normalizer, policy, value = params
+    extras = data.extras["policy_extras"]
+    assert extras[intention.NOISE].shape == (20, 4, L)
+    assert data.extras["core"]["reset"][1:].sum() > 0
+    first = jax.tree.map(lambda c: c[0], data.extras["core"]["carry"])
+    resets = data.extras["core"]["reset"]
+    dist = nets.parametric_action_distribution
+    for noise, same in ((extras[intention.NOISE], True), (None, False)):
+        logits, _, _ = nets.unroll(normalizer, policy, value, data.observation, first, resets, noise)
+        rerun = dist.log_prob(logits, extras["raw_action"])
+        assert np.allclose(rerun, extras["log_prob"], rtol=1e-5, atol=1e-5) == same
+    batch = jax.tree.map(lambda x: jp.swapaxes(x, 0, 1), data)
+    both = PPONetworkParams(policy=policy, value=value)
+    key = jax.random.PRNGKey(4)
+    loss, metrics = recurrent_ppo_loss(both, normalizer, batch, key, nets, clipping_epsilon=0.2, kl_weight=0.5, **SETTINGS)
+    zero, _ = recurrent_ppo_loss(both, normalizer, batch, key, nets, clipping_epsilon=0.2, kl_weight=0.0, **SETTINGS)
+    obs = np.asarray(running_statistics.normalize(data.observation, normalizer))
+    p = jax.tree.map(np.asarray, policy["params"])
+    h = obs[..., 2:] @ p["encoder_0"]["kernel"] + p["encoder_0"]["bias"]
+    h = h / (1 + np.exp(-h))  # swish
+    mean = h @ p["intention_mean"]["kernel"] + p["intention_mean"]["bias"]
+    std = np.exp(h @ p["intention_log_std"]["kernel"] + p["intention_log_std"]["bias"])
+    expected = np.mean(np.sum(np.log(1 / std) + (std**2 + mean**2) / 2 - 0.5, axis=-1))
+    np.testing.assert_allclose(metrics["intention_kl"], expected, rtol=1e-5)
+    # The loss's own re-run sees no change of policy: its KL is the stored distribution's to itself.
+    stored = dist.create_dist(batch.extras["policy_extras"]["distribution_params"])
+    assert float(metrics["kl_mean"]) == pytest.approx(float(jp.mean(stored.kl_divergence(stored))), rel=1e-6)
+    np.testing.assert_allclose(loss - zero, 0.5 * expected, rtol=1e-4)
+
+
+def test_the_decoder_remembers_within_an_episode_and_forgets_at_its_start():
+    """The same observation and latent from two decoder states: different actions mid-episode, the
+    same at an episode's first step (the state reset to zeros)."""
+    _, _, nets, (normalizer, policy, value) = setup()
+    obs = jp.tile(jax.random.normal(jax.random.PRNGKey(1), (1, 3)), (2, 1))
+    past = nets.initial_carry((2,))
+    past["policy"] = tuple(jax.random.normal(jax.random.PRNGKey(i), (2, 6)) * jp.array([[1.0], [0.0]]) for i in (2, 3))
+    for reset, equal in ((jp.zeros(2), False), (jp.ones(2), True)):
+        head, _, carry = nets.step(normalizer, policy, value, obs, past, reset)
+        assert np.allclose(head[0], head[1], atol=1e-7) == equal
+        assert np.allclose(carry["policy"][1][0], carry["policy"][1][1], atol=1e-7) == equal
+
+
+def test_bad_recurrent_decoder_configs_are_refused_in_one_line():
+    for network, match in (({"core_size": 0}, "core_size"), ({"intention_size": 0}, "intention_size")):
+        with pytest.raises(VnlError, match=match):
+            config(network)
+
+
+@pytest.fixture(scope="module")
+def lstm_intention_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("intention_core") / "run"
+    trainer.train(config(), out, say=quiet)
+    return out
+
+
+@pytest.mark.slow
+def test_a_recurrent_decoder_run_logs_its_kl_and_resumes_bit_exact(lstm_intention_run, tmp_path):
+    rows = [json.loads(line) for line in (lstm_intention_run / "metrics.jsonl").read_text().splitlines()]
+    kls = [r["training/intention_kl"] for r in rows if "training/intention_kl" in r]
+    assert kls and all(np.isfinite(kls)) and max(kls) > 0
+    res = tmp_path / "res"
+    trainer.train(config(num_timesteps=K, num_evals=2), res, say=quiet)
+    trainer.resume(res, flags={"ppo": {"num_timesteps": 2 * K}}, say=quiet)
+    _, a, _ = checkpoint.load_train_state(lstm_intention_run)
+    _, b, _ = checkpoint.load_train_state(res)
+    assert a.keys() == b.keys() and any("decoder_core" in k for k in a)
+    for k in a:
+        np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+
+
+@pytest.mark.slow
+def test_a_recurrent_decoder_run_is_recorded_loaded_and_exported(lstm_intention_run, tmp_path):
+    run = lstm_intention_run
+    rec = tmp_path / "rec.nc"
+    assert main(["record", str(run), "--episodes", "2", "--steps", "12", "--out", str(rec)]) == 0
+    ds = xr.open_dataset(rec)
+    for name, units in (("policy_intention", L), ("encoder_intention_mean", L), ("policy_core_h", 6)):
+        assert ds.sizes[f"{name}_unit"] == units
+    assert {"policy_core_c", "policy_hidden_0", "value_hidden_0", "value_core_h", "value_output"} <= set(ds.data_vars)
+    np.testing.assert_array_equal(ds["policy_intention"].values, ds["encoder_intention_mean"].values)
+    # The loaded policy, carrying its state from zeros, chooses the recorded actions and states.
+    policy = load_policy(run)
+    assert isinstance(policy, RecurrentPolicy)
+    state = policy.initial_state((2,))
+    for t in range(12):
+        action, state = policy.step(jp.asarray(ds["observation"].values[:, t]), state, jax.random.PRNGKey(0))
+        np.testing.assert_allclose(action, ds["action"].values[:, t], atol=1e-5)
+        np.testing.assert_allclose(state[1], ds["policy_core_h"].values[:, t], atol=1e-5)
+    from vnl.recording import nwb, nwb_reader
+
+    back = nwb_reader.read(nwb.write(ds, tmp_path / "rec.nwb", config="env: test_point_ref\n"))
+    assert back["policy_intention"].shape[-1] == L and back["policy_core_h"].shape[-1] == 6
+    # A stochastic policy draws its latent: the actions differ from the mean latent's.
+    drawn = load_policy(run, deterministic=False)
+    obs = jp.asarray(ds["observation"].values[:, 0])
+    a0, _ = drawn.step(obs, drawn.initial_state((2,)), jax.random.PRNGKey(1))
+    assert not np.allclose(a0, ds["action"].values[:, 0], atol=1e-4)
+
+
+@pytest.mark.slow
+def test_a_recurrent_decoder_is_not_yet_a_frozen_decoder(lstm_intention_run):
+    parent = train_config.read_config(lstm_intention_run)
+    decoder = train_config.DecoderConfig(run=str(lstm_intention_run))
+    with pytest.raises(VnlError, match="recurrent core"):
+        frozen_decoder.wrap(registry.make("test_point", impl="c"), decoder, parent)
