@@ -18,10 +18,11 @@ from test_intention import ReferencePoint, reference_env  # noqa: F401 (the fixt
 
 from vnl.cli import main
 from vnl.envs import registry
+from vnl.envs.latent import LatentActionEnv
 from vnl.envs.wrappers import wrap_for_training
 from vnl.errors import VnlError
 from vnl.io import checkpoint
-from vnl.policy import RecurrentPolicy, load_policy
+from vnl.policy import RecurrentPolicy, load_policy, load_run
 from vnl.ppo import intention
 from vnl.ppo.intention_core import RecurrentIntentionNetworks
 from vnl.ppo.recurrent import make_recurrent_networks
@@ -43,6 +44,7 @@ NETWORK = {
     "value_hidden_layer_sizes": [8],
 }
 SETTINGS = {"entropy_cost": 1e-3, "discounting": 0.97, "reward_scaling": 1.0, "gae_lambda": 0.95}
+SETTINGS["clipping_epsilon"] = 0.2
 
 
 def config(network=None, **ppo):
@@ -120,8 +122,8 @@ def test_the_loss_reruns_the_decoder_at_the_stored_draws_and_adds_the_kl():
     batch = jax.tree.map(lambda x: jp.swapaxes(x, 0, 1), data)
     both = PPONetworkParams(policy=policy, value=value)
     key = jax.random.PRNGKey(4)
-    loss, metrics = recurrent_ppo_loss(both, normalizer, batch, key, nets, clipping_epsilon=0.2, kl_weight=0.5, **SETTINGS)
-    zero, _ = recurrent_ppo_loss(both, normalizer, batch, key, nets, clipping_epsilon=0.2, kl_weight=0.0, **SETTINGS)
+    loss, metrics = recurrent_ppo_loss(both, normalizer, batch, key, nets, kl_weight=0.5, **SETTINGS)
+    zero, _ = recurrent_ppo_loss(both, normalizer, batch, key, nets, kl_weight=0.0, **SETTINGS)
     obs = np.asarray(running_statistics.normalize(data.observation, normalizer))
     p = jax.tree.map(np.asarray, policy["params"])
     h = obs[..., 2:] @ p["encoder_0"]["kernel"] + p["encoder_0"]["bias"]
@@ -207,8 +209,57 @@ def test_a_recurrent_decoder_run_is_recorded_loaded_and_exported(lstm_intention_
 
 
 @pytest.mark.slow
-def test_a_recurrent_decoder_is_not_yet_a_frozen_decoder(lstm_intention_run):
-    parent = train_config.read_config(lstm_intention_run)
-    decoder = train_config.DecoderConfig(run=str(lstm_intention_run))
-    with pytest.raises(VnlError, match="recurrent core"):
-        frozen_decoder.wrap(registry.make("test_point", impl="c"), decoder, parent)
+def test_a_frozen_recurrent_decoder_carries_its_state_as_its_network_does(lstm_intention_run):
+    """Given the encoder's mean latent each step, the frozen decoder on the senses alone chooses
+    the parent's own actions step after step (its state carried in the env's info); training's
+    auto-reset puts the state back to zeros at an episode's start."""
+    run = load_run(lstm_intention_run)
+    decoder = train_config.DecoderConfig(run=str(lstm_intention_run), latent_scale=1.0)
+    env = frozen_decoder.wrap(registry.make("test_point", impl="c"), decoder, run.config)
+    assert isinstance(env, LatentActionEnv) and env.stateful and env.action_size == L
+    obs = jax.random.normal(jax.random.PRNGKey(3), (8, 3))  # 8 steps of the parent's observation
+    nets = make_recurrent_networks(run.config, run.env)
+    mean, _ = nets.posterior(run.params[0], run.params[1], obs)
+    parent_state, decoder_state = run.policy.initial_state(), env.decoder_state
+    for t in range(8):
+        expected, parent_state = run.policy.step(obs[t], parent_state, jax.random.PRNGKey(0))
+        got, decoder_state = env.decode(mean[t], obs[t, :2], decoder_state)
+        np.testing.assert_allclose(got, expected, atol=1e-5)
+    assert not np.allclose(decoder_state[1], 0.0)
+    # Stepped as an env: the state moves on, and the episode's end sets it back.
+    wrapped = wrap_for_training(env, episode_length=3)
+    state = wrapped.reset(jax.random.split(jax.random.PRNGKey(1), 2))
+    step = jax.jit(wrapped.step)
+    for t in range(3):
+        state = step(state, jp.ones((2, L)))
+        moved = not np.allclose(state.info["decoder_state"][1], 0.0)
+        assert moved == (t < 2) and bool(state.done.all()) == (t == 2)
+
+
+@pytest.mark.slow
+def test_a_run_trains_through_a_frozen_recurrent_decoder_and_records_its_state(lstm_intention_run, tmp_path):
+    values = {
+        "ppo": {"num_timesteps": 2 * K, "num_evals": 2, "learning_rate": 3e-3, "episode_length": None},
+        "env_config": {"impl": "c", "episode_length": 12},
+        "network": {"policy_hidden_layer_sizes": [8], "value_hidden_layer_sizes": [8]},
+        "log": {"video": False, "progress": False},
+        "decoder": {"run": str(lstm_intention_run)},
+    }
+    out = tmp_path / "child"
+    trainer.train(train_config.build("test_point", "tiny", file_values=values), out, say=quiet)
+    child = load_run(out)
+    from vnl import record
+
+    ds = record.record(child, episodes=2, steps=6)
+    assert ds.sizes["policy_decoder_core_h_unit"] == 6 and "policy_decoder_core_c" in ds.data_vars
+    assert ds["latent_action"].shape[-1] == L and ds["action"].shape[-1] == 1
+    # The recorded decoder state moves through the episode, and replaying the recorded latents and
+    # observations through the env's decoder gives the recorded body actions back.
+    h = ds["policy_decoder_core_h"].values
+    assert not np.allclose(h[:, 0], h[:, -1])
+    state = jax.tree.map(lambda x: jp.broadcast_to(x, (2,) + x.shape), child.env.decoder_state)
+    for t in range(6):
+        latent = child.env.latent(jp.asarray(ds["latent_action"].values[:, t]))
+        body, state = child.env.decode(latent, jp.asarray(ds["observation"].values[:, t]), state)
+        np.testing.assert_allclose(body, ds["action"].values[:, t], atol=1e-5)
+        np.testing.assert_allclose(state[1], h[:, t], atol=1e-5)

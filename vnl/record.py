@@ -87,9 +87,25 @@ def network_activity(
     (`algorithm: sac`) has the policy's layers and, as `value_hidden_<i>`, its first Q network's
     layers at the chosen action, and as `value_output` min(Q1, Q2) there.
     """
+    if not _stateful_decoder(run):
+        out, core = _own_activity(run, obs, key, deterministic, core)
+        return _with_decoder(run, out, obs)[0], core
+    out, own = _own_activity(run, obs, key, deterministic, core["own"])
+    out, decoder = _with_decoder(run, out, obs, core["decoder"])
+    return out, {"own": own, "decoder": decoder}
+
+
+def _stateful_decoder(run: LoadedRun) -> bool:
+    """Whether the run acts through a frozen decoder with a memory (`decoder.run` of a recurrent decoder)."""
+    return bool(getattr(run.env, "stateful", False))
+
+
+def _own_activity(
+    run: LoadedRun, obs: jax.Array, key: jax.Array, deterministic: bool, core: Any
+) -> tuple[dict[str, Any], Any]:
+    """`network_activity` of the run's own networks (without a frozen decoder's layers)."""
     if run.config.network.core is not None:
-        out, core = _recurrent_activity(run, obs, key, deterministic, core)
-        return _with_decoder(run, out, obs), core
+        return _recurrent_activity(run, obs, key, deterministic, core)
     network = make_network(run.config, run.env)
     normalizer, policy_params, value_params = run.params
     act = ACTIVATIONS[run.config.network.activation]
@@ -116,15 +132,21 @@ def network_activity(
         hidden = sorted(dense, key=lambda n: int(n.split("_")[-1]))[:-1]  # the last layer is Q1
         out.update({f"value_{name}": act(dense[name]) for name in hidden})
         out["value_output"] = jp.min(q, axis=-1)
-    return _with_decoder(run, out, obs), core
+    return out, core
 
 
-def _with_decoder(run: LoadedRun, out: dict[str, Any], obs: jax.Array) -> dict[str, Any]:
-    """`out` with a frozen decoder's layers (`decoder.run`: the env turns the action into the body's)."""
-    if hasattr(run.env, "decoder_activity"):
-        out.update(run.env.decoder_activity(out["action"], obs))
-        out["body_action"] = run.env.decode(run.env.latent(out["action"]), obs)
-    return out
+def _with_decoder(run: LoadedRun, out: dict[str, Any], obs: jax.Array, state: Any = None) -> tuple[dict[str, Any], Any]:
+    """(`out` with a frozen decoder's layers (`decoder.run`: the env turns the action into the
+    body's), the decoder's state after this step: `state` is a recurrent decoder's before it)."""
+    if not hasattr(run.env, "decoder_activity"):
+        return out, state
+    out.update(run.env.decoder_activity(out["action"], obs, state))
+    latent = run.env.latent(out["action"])
+    if state is None:
+        out["body_action"] = run.env.decode(latent, obs)
+    else:
+        out["body_action"], state = run.env.decode(latent, obs, state)
+    return out, state
 
 
 def _intention_activity(
@@ -151,7 +173,7 @@ def episode_activity(run: LoadedRun, obs: np.ndarray) -> dict[str, np.ndarray]:
     each episode at their initial state and carry it through the episode's steps."""
     obs = jp.asarray(obs, jp.float32)
     key = jax.random.PRNGKey(0)
-    if run.config.network.core is None:
+    if run.config.network.core is None and not _stateful_decoder(run):
         activity, _ = network_activity(run, obs, key)
         return jax.device_get(activity)
 
@@ -164,12 +186,17 @@ def episode_activity(run: LoadedRun, obs: np.ndarray) -> dict[str, np.ndarray]:
 
 
 def initial_core(run: LoadedRun, batch_shape: tuple[int, ...]) -> Any:
-    """The cores' state at the start of an episode (a recurrent run), else ()."""
-    if run.config.network.core is None:
-        return ()
-    from vnl.ppo.recurrent_ppo import zero_carry
+    """The cores' state at the start of an episode (a recurrent run), else (); through a recurrent
+    frozen decoder, {"own": that, "decoder": the decoder's state batch_shape + (...)}."""
+    own: Any = ()
+    if run.config.network.core is not None:
+        from vnl.ppo.recurrent_ppo import zero_carry
 
-    return zero_carry(make_recurrent_networks(run.config, run.env), batch_shape)
+        own = zero_carry(make_recurrent_networks(run.config, run.env), batch_shape)
+    if not _stateful_decoder(run):
+        return own
+    decoder = jax.tree.map(lambda x: jp.broadcast_to(x, batch_shape + x.shape), run.env.decoder_state)
+    return {"own": own, "decoder": decoder}
 
 
 def _recurrent_activity(

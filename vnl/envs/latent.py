@@ -8,6 +8,11 @@ Aldarondo et al. 2024's and track-mjx's reuse of an imitation decoder under a ne
 policy is this with the decoder frozen (`vnl.train.frozen_decoder` builds `decode` from a trained
 intention network; docs/how-to/intention-network.md#reusing-a-trained-decoder).
 
+A decoder with a memory (a recurrent core) is given its state at an episode's start,
+`decoder_state`: then `decode(z, obs, state) -> (action, state)`, the state is carried in
+`info["decoder_state"]` from step to step and set back to `decoder_state` by `reset` (and by
+training's auto-reset, which restores a new episode's `info`).
+
 Everything else (observations, rewards, metrics, rendering, the task's attributes) is the
 wrapped env's; `info["decoded_action"]` holds the body's action of the last step.
 """
@@ -23,46 +28,73 @@ import jax.numpy as jp
 from vnl.envs.adapter import EnvAdapter
 from vnl.tasks.contract import Env, State
 
-Decode = Callable[[jax.Array, jax.Array], jax.Array]
-"""`decode(latent (L,), obs (O,)) -> action (A,)`, jit-able and pure."""
-Activity = Callable[[jax.Array, jax.Array], dict[str, jax.Array]]
-"""`activity(latent (..., L), obs (..., O)) -> {layer name: (..., units)}`: the decoder's layers."""
+Decode = Callable[..., Any]
+"""`decode(latent (L,), obs (O,)) -> action (A,)`, jit-able and pure; with a decoder state,
+`decode(latent, obs, state) -> (action, state)`."""
+Activity = Callable[..., dict[str, jax.Array]]
+"""`activity(latent (..., L), obs (..., O)[, state]) -> {layer name: (..., units)}`: the decoder's layers."""
 
 
 class LatentActionEnv(EnvAdapter):
-    """`env` acted on through `decode` (see the module docstring). Flat observations only."""
+    """`env` acted on through `decode` (see the module docstring). Flat observations only.
+    `decoder_state`: a stateful decoder's state at an episode's start (arrays without a batch
+    axis), None for a feed-forward decoder."""
 
     def __init__(
-        self, env: Env, decode: Decode, latent_size: int, scale: float = 1.0, activity: Activity | None = None
+        self,
+        env: Env,
+        decode: Decode,
+        latent_size: int,
+        scale: float = 1.0,
+        activity: Activity | None = None,
+        decoder_state: Any = None,
     ) -> None:
         super().__init__(env)
         self.decode = decode
         self.activity = activity
         self.latent_size = int(latent_size)
         self.scale = float(scale)
+        self.decoder_state = decoder_state
 
     def latent(self, action: jax.Array) -> jax.Array:
         """The latent (..., L) of latent actions `action` (..., L): `scale` × action, NaN -> 0."""
         return self.scale * jp.nan_to_num(action, nan=0.0, posinf=0.0, neginf=0.0)
 
-    def body_action(self, state: State, action: jax.Array) -> jax.Array:
-        """The body's action (A,) that the latent action `action` (L,) gives in `state`."""
-        return self.decode(self.latent(action), state.obs)
+    @property
+    def stateful(self) -> bool:
+        """Whether the decoder carries a state from step to step (`decoder_state`)."""
+        return self.decoder_state is not None
 
-    def decoder_activity(self, action: jax.Array, obs: jax.Array) -> dict[str, jax.Array]:
+    def body_action(self, state: State, action: jax.Array) -> tuple[jax.Array, Any]:
+        """(the body's action (A,) that the latent action `action` (L,) gives in `state`, the
+        decoder's state after it: None for a feed-forward decoder)."""
+        if self.stateful:
+            return self.decode(self.latent(action), state.obs, state.info["decoder_state"])
+        return self.decode(self.latent(action), state.obs), None
+
+    def decoder_activity(self, action: jax.Array, obs: jax.Array, decoder_state: Any = None) -> dict[str, jax.Array]:
         """The decoder's layers for latent actions `action` (..., L) taken on `obs` (..., O)
-        (empty when the env was given no `activity`)."""
-        return {} if self.activity is None else self.activity(self.latent(action), obs)
+        from `decoder_state` (a stateful decoder's; empty when the env was given no `activity`)."""
+        if self.activity is None:
+            return {}
+        extra = (decoder_state,) if self.stateful else ()
+        return self.activity(self.latent(action), obs, *extra)
 
     # The Env contract ----------------------------------------------------------------------------
     def reset(self, rng: jax.Array) -> State:
         state = self.inner.reset(rng)
-        return state.replace(info={**state.info, "decoded_action": jp.zeros(self.inner.action_size)})
+        info = {**state.info, "decoded_action": jp.zeros(self.inner.action_size)}
+        if self.stateful:
+            info["decoder_state"] = self.decoder_state
+        return state.replace(info=info)
 
     def step(self, state: State, action: jax.Array) -> State:
-        body = self.body_action(state, action)
+        body, decoder_state = self.body_action(state, action)
         new = self.inner.step(state, body)
-        return new.replace(info={**new.info, "decoded_action": body})
+        info = {**new.info, "decoded_action": body}
+        if self.stateful:
+            info["decoder_state"] = decoder_state
+        return new.replace(info=info)
 
     @property
     def action_size(self) -> int:
@@ -77,5 +109,10 @@ class LatentActionEnv(EnvAdapter):
 
     def with_model(self, mjx_model: Any) -> Env:
         return LatentActionEnv(
-            self.inner.with_model(mjx_model), self.decode, self.latent_size, self.scale, self.activity
+            self.inner.with_model(mjx_model),
+            self.decode,
+            self.latent_size,
+            self.scale,
+            self.activity,
+            self.decoder_state,
         )

@@ -39,16 +39,18 @@ NO_NOISE = None
 
 class RecurrentIntentionNet(IntentionNet):
     """`IntentionNet` with a core after the decoder MLP. `__call__(obs (..., O) normalized, carry,
-    noise (..., L) or None) -> (policy output, latent mean (..., L), latent log std (..., L), carry)`."""
+    noise (..., L) or None, latent (..., L) or None) -> (policy output, latent mean (..., L), latent
+    log std (..., L), carry)`; a given `latent` is decoded instead of the encoder's, as
+    `IntentionNet` does for a frozen decoder."""
 
     core: str = "lstm"
     core_size: int = 128
 
     @linen.compact
     def __call__(  # type: ignore[override]
-        self, obs: jax.Array, carry: Carry, noise: jax.Array | None = None
+        self, obs: jax.Array, carry: Carry, noise: jax.Array | None = None, latent: jax.Array | None = None
     ) -> tuple[Any, jax.Array, jax.Array, Carry]:
-        latent, mean, log_std = self._latent(obs, noise, None)
+        latent, mean, log_std = self._latent(obs, noise, latent)
         x = self._decode(latent, obs)
         carry, x = run_cell(core_cell(self.core, self.core_size, "decoder_core"), self.core, carry, x)
         self.sow("intermediates", "policy_core_h", carry[-1])

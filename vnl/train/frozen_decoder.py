@@ -6,7 +6,9 @@ outputs the latent, and the frozen decoder turns latent + proprioception into mu
 Here the run's env is wrapped in `vnl.envs.latent.LatentActionEnv`, whose `decode` is the parent's
 decoder with its checkpoint's parameters and observation normalizer held fixed (constants of
 the compiled step: no gradient reaches them, no optimizer holds them). PPO then trains an
-ordinary policy (Brax's MLPs, or Merel's network) whose action is the latent.
+ordinary policy (Brax's MLPs, or Merel's network) whose action is the latent. A recurrent
+decoder (`network.core`, `vnl.ppo.intention_core`) keeps its state in the env's info, from an
+episode's start at zeros (`LatentActionEnv`'s `decoder_state`).
 
 The decoder reads the parent's non-reference observation blocks (its proprioception, by name and
 width, `observation_layout`); the new env must have each of them, in any order. docs:
@@ -28,6 +30,7 @@ from vnl.errors import VnlError
 from vnl.io import checkpoint
 from vnl.ppo import intention
 from vnl.ppo.networks import make_network
+from vnl.ppo.recurrent import make_recurrent_networks
 
 
 def wrap(env: Any, decoder: Any, parent: Any) -> LatentActionEnv:
@@ -41,11 +44,6 @@ def wrap(env: Any, decoder: Any, parent: Any) -> LatentActionEnv:
             f"decoder.run {run_dir} trained network.architecture {parent.network.architecture}; a frozen decoder "
             "comes from an intention network (train rodent_imitate with --set network.architecture=intention)"
         )
-    if parent.network.core is not None:
-        raise VnlError(
-            f"decoder.run {run_dir}: its decoder has a recurrent core (network.core {parent.network.core}), and a "
-            "frozen decoder can only be feed-forward so far; use a decoder run trained without network.core"
-        )
     if decoder.config_hash is not None and parent.content_hash() != decoder.config_hash:
         raise VnlError(
             f"decoder.run {run_dir}: its config.yaml changed since this run recorded it (hash "
@@ -54,12 +52,37 @@ def wrap(env: Any, decoder: Any, parent: Any) -> LatentActionEnv:
     _, params = checkpoint.load(run_dir, decoder.step)
     source = parent.stage(len(parent.curriculum) - 1) if parent.curriculum else parent
     parent_env = source.make_env()
-    network = make_network(parent, parent_env)
+    frozen = Decoder.of(parent, parent_env)
     mine, theirs = matching_columns(parent_env, env, run_dir)
     width = int(parent_env.observation_size)
-    decode = decoder_fn(network, params, width, mine, theirs)
-    activity = decoder_fn(network, params, width, mine, theirs, layers=True)
-    return LatentActionEnv(env, decode, network.policy_network.intention_size, decoder.latent_scale, activity)
+    decode = decoder_fn(frozen, params, width, mine, theirs)
+    activity = decoder_fn(frozen, params, width, mine, theirs, layers=True)
+    return LatentActionEnv(env, decode, frozen.intention_size, decoder.latent_scale, activity, frozen.initial_state)
+
+
+@dataclasses.dataclass(frozen=True)
+class Decoder:
+    """What a frozen decoder needs of its intention network: the flax module, the observation
+    normalizer function, the action distribution, the latent's size and, for a recurrent decoder
+    (`network.core`, `vnl.ppo.intention_core`), its state at an episode's start (None otherwise)."""
+
+    module: Any
+    normalize: Any
+    distribution: Any
+    intention_size: int
+    initial_state: Any = None
+
+    @staticmethod
+    def of(parent: Any, parent_env: Any) -> Decoder:
+        """The decoder of the intention network that the `TrainConfig` `parent` trains on `parent_env`."""
+        if parent.network.core is None:
+            network = make_network(parent, parent_env)
+            policy: intention.IntentionPolicy = network.policy_network
+            dist = network.parametric_action_distribution
+            return Decoder(policy.module, policy.normalize, dist, policy.intention_size)
+        nets = make_recurrent_networks(parent, parent_env)
+        initial = nets.policy_initial_carry(())
+        return Decoder(nets.module, nets.normalize, nets.parametric_action_distribution, nets.intention_size, initial)
 
 
 def matching_columns(parent_env: Any, env: Any, run_dir: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -94,35 +117,41 @@ def matching_columns(parent_env: Any, env: Any, run_dir: Path) -> tuple[np.ndarr
     return np.asarray(mine, np.int32), np.asarray(theirs, np.int32)
 
 
-LAYERS = {"policy_intention": "policy_decoder_intention", "policy_hidden_": "policy_decoder_hidden_"}
+LAYERS = {
+    "policy_intention": "policy_decoder_intention",
+    "policy_hidden_": "policy_decoder_hidden_",
+    "policy_core_": "policy_decoder_core_",
+}
 """The recording's names of the frozen decoder's layers (the intention network's, renamed so that
 the new policy's own `policy_hidden_<i>` keep theirs), and `policy_decoder_output`, its head."""
 
 
 def decoder_fn(
-    network: Any, params: Any, width: int, mine: np.ndarray, theirs: np.ndarray, layers: bool = False
+    decoder: Decoder, params: Any, width: int, mine: np.ndarray, theirs: np.ndarray, layers: bool = False
 ) -> Any:
-    """`decode(latent (..., L), obs (..., O)) -> action (..., A)`: the intention network
-    `network`'s decoder with `params` (normalizer, policy, value) fixed, reading the parent
-    observation (width `width`) whose columns `theirs` are `obs`'s columns `mine` (the rest, the
-    reference, unread); the action distribution's mode, as a deterministic policy's. With
-    `layers`, `decode` returns the decoder's layers instead ({`LAYERS` name: (..., units)})."""
-    policy: intention.IntentionPolicy = network.policy_network
+    """`decode(latent (..., L), obs (..., O)) -> action (..., A)`: the intention network's
+    decoder with `params` (normalizer, policy, value) fixed, reading the parent observation (width
+    `width`) whose columns `theirs` are `obs`'s columns `mine` (the rest, the reference, unread);
+    the action distribution's mode, as a deterministic policy's. A recurrent decoder's is
+    `decode(latent, obs, state) -> (action, state)`. With `layers`, `decode` returns the decoder's
+    layers instead ({`LAYERS` name: (..., units)})."""
     normalizer, policy_params = jax.tree.map(jp.asarray, (params[0], params[1]))
 
-    def decode(latent: jax.Array, obs: jax.Array) -> Any:
+    def decode(latent: jax.Array, obs: jax.Array, *state: Any) -> Any:
         parent_obs = jp.zeros(obs.shape[:-1] + (width,), obs.dtype).at[..., theirs].set(obs[..., mine])
-        normalized = policy.normalize(parent_obs, normalizer)
+        normalized = decoder.normalize(parent_obs, normalizer)
+        args = (normalized, *state, None, latent)
         if not layers:
-            head, _, _ = policy.module.apply(policy_params, normalized, None, latent)
-            return network.parametric_action_distribution.mode(head)
-        (head, _, _), state = policy.module.apply(policy_params, normalized, None, latent, mutable=["intermediates"])
-        out = {"policy_decoder_output": head}
-        for name, (value,) in state["intermediates"].items():
+            out = decoder.module.apply(policy_params, *args)
+            action = decoder.distribution.mode(out[0])
+            return (action, out[-1]) if state else action
+        out, sown = decoder.module.apply(policy_params, *args, mutable=["intermediates"])
+        result = {"policy_decoder_output": out[0]}
+        for name, (value,) in sown["intermediates"].items():
             for old, new in LAYERS.items():
                 if name.startswith(old):
-                    out[new + name.removeprefix(old)] = value
-        return out
+                    result[new + name.removeprefix(old)] = value
+        return result
 
     return decode
 
