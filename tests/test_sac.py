@@ -2,6 +2,7 @@
 `sac.min_replay_size` before updating, resumes bit for bit (replay buffer included), is loaded,
 evaluated and recorded like a PPO run, and refuses what it cannot train before compiling."""
 
+import functools
 import hashlib
 import json
 import shutil
@@ -130,6 +131,45 @@ def test_what_sac_cannot_train_is_refused_before_compiling(sac_run, tmp_path, ca
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and err.startswith("vnl: error:") and "sac.discounting" in err
     assert not (tmp_path / "r").exists()
+
+
+def test_actor_delay_holds_the_policy_and_temperature_while_the_critics_learn():
+    """`sac.actor_delay`: an update before that many env steps changes the Q networks only; from
+    then on the policy and the temperature too (counted on the 64-bit step counter)."""
+    from brax.training.types import UInt64
+
+    from vnl.envs import registry
+    from vnl.ppo.loop import AXIS
+    from vnl.ppo.sac import SACLoop, _dummy_transition, _steps_below
+
+    cfg = config(actor_delay=1000)
+    loop = SACLoop(registry.make("test_point", **cfg.env_config), cfg)
+    start = loop.init_training(jax.random.PRNGKey(0))
+    keys = iter(jax.random.split(jax.random.PRNGKey(1), 8))
+    batch = jax.tree.map(lambda x: jax.random.normal(next(keys), (64,) + x.shape), _dummy_transition(2, 1))
+    update = jax.jit(jax.vmap(loop._sgd_update, axis_name=AXIS))  # its gradients are averaged over AXIS
+    one = functools.partial(jax.tree.map, lambda x: jp.asarray(x)[None])
+
+    def same(a, b):
+        return all(np.array_equal(x, y) for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True))
+
+    for steps, held in ((0, True), (999, True), (1000, False)):
+        before = start.replace(env_steps=UInt64(hi=jp.uint32(0), lo=jp.uint32(steps)))
+        (after, _), _ = update(one((before, jax.random.PRNGKey(2))), one(batch))
+        after = jax.tree.map(lambda x: x[0], after)
+        assert same(before.params.policy, after.params.policy) == held
+        assert same(before.policy_optimizer_state, after.policy_optimizer_state) == held
+        assert same(before.log_alpha, after.log_alpha) == held
+        assert not same(before.params.value, after.params.value)
+    below = lambda hi, lo, limit: bool(_steps_below(UInt64(hi=jp.uint32(hi), lo=jp.uint32(lo)), limit))  # noqa: E731
+    assert below(1, 4, 2**32 + 5) and not below(1, 5, 2**32 + 5) and not below(1, 0, 5) and not below(0, 0, 0)
+    with pytest.raises(VnlError, match="actor_delay"):
+        config(actor_delay=-1)
+    # The default (0) leaves a SAC run's hash as it was before the key existed.
+    values = {k: v for k, v in config_lib.to_dict(config()).items() if k not in ("log", "decoder")}
+    del values["sac"]["actor_delay"]
+    assert config().content_hash() == hashlib.sha256(yaml.safe_dump(values, sort_keys=True).encode()).hexdigest()[:16]
+    assert config(actor_delay=5).content_hash() != config().content_hash()
 
 
 def test_a_ppo_config_keeps_its_hash_from_before_sac():

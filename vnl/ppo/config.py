@@ -152,6 +152,9 @@ class SACConfig:
     # a resumed run is the run never stopped; rundir's disk check counts it.
     max_replay_size: int = 2**17
     min_replay_size: int = 8192
+    # Env steps at the run's start in which only the Q networks learn, the policy and the temperature
+    # held: a warm-started policy is not pulled about by a fresh critic (docs/how-to/sac.md).
+    actor_delay: int = 0
 
     def validate(self) -> None:
         for key, most in (("batch_size", MAX_ENVS), ("grad_updates_per_step", 10**4), ("max_replay_size", 2**26)):
@@ -162,6 +165,8 @@ class SACConfig:
                 f"min_replay_size must be in 0..max_replay_size ({self.max_replay_size:,}), "
                 f"got {self.min_replay_size:,}"
             )
+        if not 0 <= self.actor_delay <= 2**62:
+            raise VnlError(f"actor_delay must be >= 0 env steps, got {self.actor_delay:,}")
         for key in ("learning_rate", "reward_scaling"):
             if not getattr(self, key) > 0:
                 raise VnlError(f"{key} must be > 0, got {getattr(self, key)}")

@@ -196,6 +196,11 @@ class SACLoop(PPOLoop):
         actor_loss, new_policy, policy_opt = self._actor_update(
             policy, normalizer, q, alpha, batch, key_actor, optimizer_state=t.policy_optimizer_state
         )
+        # While `actor_delay` lasts the policy and the temperature keep their values (and Adam states).
+        held = _steps_below(t.env_steps, self.config.sac.actor_delay)
+        keep = functools.partial(jax.tree.map, lambda old, new: jp.where(held, old, new))
+        new_policy, policy_opt = keep((policy, t.policy_optimizer_state), (new_policy, policy_opt))
+        log_alpha, alpha_opt = keep((t.log_alpha, t.alpha_optimizer_state), (log_alpha, alpha_opt))
         tau = self.config.sac.tau
         target_q = jax.tree.map(lambda x, y: x * (1 - tau) + y * tau, t.target_q, new_q)
         t = t.replace(
@@ -214,3 +219,10 @@ class SACLoop(PPOLoop):
             "alpha": jp.exp(log_alpha),
         }
         return (t, key), metrics
+
+
+def _steps_below(steps: brax_types.UInt64, limit: int) -> jax.Array:
+    """Whether the 64-bit count `steps` is below `limit` (an int >= 0): a () bool."""
+    hi, lo = divmod(int(limit), 2**32)
+    below_lo = steps.lo < jp.asarray(lo, steps.lo.dtype)
+    return (steps.hi < hi) | ((steps.hi == hi) & below_lo)

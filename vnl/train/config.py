@@ -322,6 +322,8 @@ class TrainConfig:
         values = {k: v for k, v in config_lib.to_dict(self).items() if k != "log"}
         if self.decoder == DecoderConfig():
             values.pop("decoder")
+        if self.sac.actor_delay == 0:  # SAC runs from before actor_delay keep their hash
+            values["sac"].pop("actor_delay")
         if self.algorithm == "ppo" and self.sac == SACConfig():  # runs from before SAC keep their hash
             values.pop("algorithm")
             values.pop("sac")
