@@ -226,12 +226,18 @@ def test_a_frozen_recurrent_decoder_carries_its_state_as_its_network_does(lstm_i
         got, decoder_state = env.decode(mean[t], obs[t, :2], decoder_state)
         np.testing.assert_allclose(got, expected, atol=1e-5)
     assert not np.allclose(decoder_state[1], 0.0)
-    # Stepped as an env: the state moves on, and the episode's end sets it back.
+    # Stepped as an env: each step's body action is the decoder's from the state carried so far
+    # (replayed here by hand), the state moves on, and the episode's end sets it back to zeros.
     wrapped = wrap_for_training(env, episode_length=3)
     state = wrapped.reset(jax.random.split(jax.random.PRNGKey(1), 2))
     step = jax.jit(wrapped.step)
+    by_hand = jax.tree.map(lambda x: jp.broadcast_to(x, (2,) + x.shape), env.decoder_state)
+    action = jp.asarray([[1.0, -0.5, 0.3], [0.2, 0.9, -1.0]])
     for t in range(3):
-        state = step(state, jp.ones((2, L)))
+        expected, by_hand = env.decode(env.latent(action), state.obs, by_hand)
+        state = step(state, action)
+        if t < 2:  # at the episode's end the auto-reset puts the new episode's info in place
+            np.testing.assert_allclose(state.info["decoded_action"], expected, atol=1e-6)
         moved = not np.allclose(state.info["decoder_state"][1], 0.0)
         assert moved == (t < 2) and bool(state.done.all()) == (t == 2)
 
@@ -245,6 +251,9 @@ def test_a_run_trains_through_a_frozen_recurrent_decoder_and_records_its_state(l
         "log": {"video": False, "progress": False},
         "decoder": {"run": str(lstm_intention_run)},
     }
+    repeated = {**values, "ppo": {**values["ppo"], "action_repeat": 2}}
+    with pytest.raises(VnlError, match="action_repeat"):  # the core would step once per repeat
+        train_config.build("test_point", "tiny", file_values=repeated).make_env()
     out = tmp_path / "child"
     trainer.train(train_config.build("test_point", "tiny", file_values=values), out, say=quiet)
     child = load_run(out)

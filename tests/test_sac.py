@@ -160,6 +160,7 @@ def test_actor_delay_holds_the_policy_and_temperature_while_the_critics_learn():
         assert same(before.params.policy, after.params.policy) == held
         assert same(before.policy_optimizer_state, after.policy_optimizer_state) == held
         assert same(before.log_alpha, after.log_alpha) == held
+        assert same(before.alpha_optimizer_state, after.alpha_optimizer_state) == held
         assert not same(before.params.value, after.params.value)
     below = lambda hi, lo, limit: bool(_steps_below(UInt64(hi=jp.uint32(hi), lo=jp.uint32(lo)), limit))  # noqa: E731
     assert below(1, 4, 2**32 + 5) and not below(1, 5, 2**32 + 5) and not below(1, 0, 5) and not below(0, 0, 0)

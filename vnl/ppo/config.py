@@ -166,7 +166,7 @@ class SACConfig:
                 f"got {self.min_replay_size:,}"
             )
         if not 0 <= self.actor_delay <= 2**62:
-            raise VnlError(f"actor_delay must be >= 0 env steps, got {self.actor_delay:,}")
+            raise VnlError(f"actor_delay must be in 0..2**62 env steps, got {self.actor_delay:,}")
         for key in ("learning_rate", "reward_scaling"):
             if not getattr(self, key) > 0:
                 raise VnlError(f"{key} must be > 0, got {getattr(self, key)}")

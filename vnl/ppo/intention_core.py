@@ -41,15 +41,22 @@ class RecurrentIntentionNet(IntentionNet):
     """`IntentionNet` with a core after the decoder MLP. `__call__(obs (..., O) normalized, carry,
     noise (..., L) or None, latent (..., L) or None) -> (policy output, latent mean (..., L), latent
     log std (..., L), carry)`; a given `latent` is decoded instead of the encoder's, as
-    `IntentionNet` does for a frozen decoder."""
+    `IntentionNet` does for a frozen decoder; `encode_only` returns (mean, log std) alone."""
 
     core: str = "lstm"
     core_size: int = 128
 
     @linen.compact
     def __call__(  # type: ignore[override]
-        self, obs: jax.Array, carry: Carry, noise: jax.Array | None = None, latent: jax.Array | None = None
-    ) -> tuple[Any, jax.Array, jax.Array, Carry]:
+        self,
+        obs: jax.Array,
+        carry: Carry,
+        noise: jax.Array | None = None,
+        latent: jax.Array | None = None,
+        encode_only: bool = False,
+    ) -> Any:
+        if encode_only:  # the latent's (mean, log std) alone: the encoder reads this step's reference only
+            return self._encode(obs)
         latent, mean, log_std = self._latent(obs, noise, latent)
         x = self._decode(latent, obs)
         carry, x = run_cell(core_cell(self.core, self.core_size, "decoder_core"), self.core, carry, x)
@@ -160,9 +167,7 @@ class RecurrentIntentionNetworks:
     def posterior(self, normalizer: Any, policy: Any, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
         """The latent's (mean, log std), each (..., L), given `obs` (..., O): the encoder reads
         the reference of this step alone, so the decoder's state does not enter."""
-        zeros = self.policy_initial_carry(obs.shape[:-1])
-        _, mean, log_std, _ = self._policy(normalizer, policy, obs, zeros, jp.zeros(obs.shape[:-1]), NO_NOISE)
-        return mean, log_std
+        return self.module.apply(policy, self.normalize(obs, normalizer), (), encode_only=True)
 
     def policy_activity(
         self, normalizer: Any, policy: Any, obs: jax.Array, state: Carry, noise: jax.Array | None = NO_NOISE

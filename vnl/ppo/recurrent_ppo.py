@@ -116,7 +116,8 @@ def recurrent_ppo_loss(
     core = data.extras["core"]
     resets = core["reset"]
     first = jax.tree.map(lambda c: c[0], core["carry"])
-    latent = {"noise": data.extras["policy_extras"][NOISE]} if kl_weight is not None else {}
+    stored = data.extras["policy_extras"]
+    latent = {"noise": stored[NOISE]} if NOISE in stored else {}  # an intention network's draws
     logits, baseline, carry = networks.unroll(
         normalizer_params, params.policy, params.value, data.observation, first, resets, **latent
     )

@@ -307,7 +307,13 @@ class TrainConfig:
             return env
         from vnl.train import frozen_decoder
 
-        return frozen_decoder.wrap(env, self.decoder, self.decoder_run_config())
+        env = frozen_decoder.wrap(env, self.decoder, self.decoder_run_config())
+        if env.stateful and self.ppo.action_repeat != 1:  # its core would step once per repeat, not per control step
+            raise VnlError(
+                f"decoder.run {self.decoder.run}: a recurrent decoder steps once per control step, and "
+                f"ppo.action_repeat is {self.ppo.action_repeat}; set ppo.action_repeat to 1"
+            )
+        return env
 
     def decoder_run_config(self) -> TrainConfig:
         """The saved config of `decoder.run`; a `VnlError` that names decoder.run if it is none."""
