@@ -189,25 +189,33 @@ class IntentionPolicy:
         )
 
 
+def module_settings(net: Any, env: Any, activation: Callable[[jax.Array], jax.Array]) -> tuple[dict[str, Any], Any]:
+    """(`IntentionNet`'s fields for `env` with the `network` config `net`'s sizes and action
+    distribution, Brax's action distribution)."""
+    reference, rest = observation_parts(env)
+    dist, out_size, std_size = action_distribution(net.distribution_type, env.action_size)
+    settings = {
+        "reference": reference,
+        "proprioception": rest,
+        "encoder_sizes": tuple(net.encoder_hidden_layer_sizes),
+        "intention_size": net.intention_size,
+        "decoder_sizes": tuple(net.policy_hidden_layer_sizes),
+        "out_size": out_size,
+        "activation": activation,
+        "std_size": std_size,
+        "noise_std_type": net.noise_std_type,
+        "init_noise_std": net.init_noise_std,
+    }
+    return settings, dist
+
+
 def make_networks(
     net: Any, env: Any, normalize: Callable[[Any, Any], Any], activation: Callable[[jax.Array], jax.Array]
 ) -> Any:
     """Brax's `PPONetworks` with an `IntentionPolicy` and Brax's value MLP for `env`, with the
     sizes, action distribution and `activation` of the `network` config `net`."""
-    reference, rest = observation_parts(env)
-    dist, out_size, std_size = action_distribution(net.distribution_type, env.action_size)
-    module = IntentionNet(
-        reference=reference,
-        proprioception=rest,
-        encoder_sizes=tuple(net.encoder_hidden_layer_sizes),
-        intention_size=net.intention_size,
-        decoder_sizes=tuple(net.policy_hidden_layer_sizes),
-        out_size=out_size,
-        activation=activation,
-        std_size=std_size,
-        noise_std_type=net.noise_std_type,
-        init_noise_std=net.init_noise_std,
-    )
+    settings, dist = module_settings(net, env, activation)
+    module = IntentionNet(**settings)
     value = networks.make_value_network(
         env.observation_size,
         preprocess_observations_fn=normalize,

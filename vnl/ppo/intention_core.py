@@ -30,8 +30,8 @@ import jax
 import jax.numpy as jp
 from flax import linen
 
-from vnl.ppo.heads import Carry, action_distribution, core_cell, run_cell
-from vnl.ppo.intention import IntentionNet, observation_parts
+from vnl.ppo.heads import Carry, core_cell, run_cell
+from vnl.ppo.intention import IntentionNet, module_settings
 
 NO_NOISE = None
 """The `noise` that decodes the latent's mean (a deterministic policy)."""
@@ -187,20 +187,6 @@ def make_networks(
 ) -> RecurrentIntentionNetworks:
     """`RecurrentIntentionNetworks` for `env` with the `network` config `net`'s sizes, core and
     action distribution, and `value_network` (a `vnl.ppo.recurrent.RecurrentNetwork`)."""
-    reference, rest = observation_parts(env)
-    dist, out_size, std_size = action_distribution(net.distribution_type, env.action_size)
-    module = RecurrentIntentionNet(
-        reference=reference,
-        proprioception=rest,
-        encoder_sizes=tuple(net.encoder_hidden_layer_sizes),
-        intention_size=net.intention_size,
-        decoder_sizes=tuple(net.policy_hidden_layer_sizes),
-        out_size=out_size,
-        activation=activation,
-        std_size=std_size,
-        noise_std_type=net.noise_std_type,
-        init_noise_std=net.init_noise_std,
-        core=str(net.core),
-        core_size=net.core_size,
-    )
+    settings, dist = module_settings(net, env, activation)
+    module = RecurrentIntentionNet(**settings, core=str(net.core), core_size=net.core_size)
     return RecurrentIntentionNetworks(module, value_network, int(env.observation_size), normalize, dist)
