@@ -20,21 +20,24 @@ import jax
 import numpy as np
 
 from vnl.io import video
-from vnl.policy import load_run
+from vnl.policy import load_run, stateful
 
 
 def episode(run, seed: int, steps: int) -> tuple[np.ndarray, np.ndarray, dict]:
     """(qpos (T, nq) of the rat, qpos (T, nq) of the reference, facts) of one episode (T ≤ steps + 1)."""
     env, task = run.env, run.env.unwrapped
     reset, step = jax.jit(env.reset), jax.jit(env.step)
-    act = jax.jit(run.policy)
+    initial, policy_step = stateful(run.policy)  # a recurrent policy carries its state
+    act = jax.jit(policy_step)
+    memory = initial(())
     state = reset(jax.random.PRNGKey(seed))
     clip, start = int(state.info["clip"]), int(state.info["frame"])
     rat, ref = [np.asarray(state.data.qpos)], [np.asarray(task.frame(state.info["clip"], state.info["frame"])["qpos"])]
     key = jax.random.PRNGKey(seed + 1)
     for _ in range(steps):
         key, sub = jax.random.split(key)
-        state = step(state, act(state.obs, sub))
+        action, memory = act(state.obs, memory, sub)
+        state = step(state, action)
         rat.append(np.asarray(state.data.qpos))
         ref.append(np.asarray(task.frame(state.info["clip"], state.info["frame"])["qpos"]))
         if bool(state.done):
