@@ -133,9 +133,9 @@ def test_what_sac_cannot_train_is_refused_before_compiling(sac_run, tmp_path, ca
     assert not (tmp_path / "r").exists()
 
 
-def test_actor_delay_holds_the_policy_while_the_critics_and_temperature_learn():
-    """`sac.actor_delay`: an update before that many env steps changes the Q networks and the
-    temperature only; from then on the policy too (counted on the 64-bit step counter)."""
+def test_actor_delay_holds_the_policy_and_temperature_while_the_critics_learn():
+    """`sac.actor_delay`: an update before that many env steps changes the Q networks only; from
+    then on the policy and the temperature too (counted on the 64-bit step counter)."""
     from brax.training.types import UInt64
 
     from vnl.envs import registry
@@ -159,7 +159,9 @@ def test_actor_delay_holds_the_policy_while_the_critics_and_temperature_learn():
         after = jax.tree.map(lambda x: x[0], after)
         assert same(before.params.policy, after.params.policy) == held
         assert same(before.policy_optimizer_state, after.policy_optimizer_state) == held
-        assert not same(before.params.value, after.params.value) and not same(before.log_alpha, after.log_alpha)
+        assert same(before.log_alpha, after.log_alpha) == held
+        assert same(before.alpha_optimizer_state, after.alpha_optimizer_state) == held
+        assert not same(before.params.value, after.params.value)
     below = lambda hi, lo, limit: bool(_steps_below(UInt64(hi=jp.uint32(hi), lo=jp.uint32(lo)), limit))  # noqa: E731
     assert below(1, 4, 2**32 + 5) and not below(1, 5, 2**32 + 5) and not below(1, 0, 5) and not below(0, 0, 0)
     with pytest.raises(VnlError, match="actor_delay"):

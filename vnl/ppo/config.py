@@ -152,8 +152,8 @@ class SACConfig:
     # a resumed run is the run never stopped; rundir's disk check counts it.
     max_replay_size: int = 2**17
     min_replay_size: int = 8192
-    # Env steps at the run's start in which the policy is held while the Q networks and the temperature
-    # learn: a warm-started policy is not pulled about by a fresh critic (docs/how-to/sac.md).
+    # Env steps at the run's start in which only the Q networks learn, the policy and the temperature
+    # held: a warm-started policy is not pulled about by a fresh critic (docs/how-to/sac.md).
     actor_delay: int = 0
 
     def validate(self) -> None:

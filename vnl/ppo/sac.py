@@ -196,11 +196,12 @@ class SACLoop(PPOLoop):
         actor_loss, new_policy, policy_opt = self._actor_update(
             policy, normalizer, q, alpha, batch, key_actor, optimizer_state=t.policy_optimizer_state
         )
-        # While `actor_delay` lasts the policy keeps its values and Adam state; the temperature learns
-        # on, towards the held policy's entropy (docs/how-to/sac.md).
+        # While `actor_delay` lasts the policy and the temperature keep their values and Adam states: a
+        # temperature learning beside a held policy winds up (to 10 on the rat, docs/how-to/sac.md).
         held = _steps_below(t.env_steps, self.config.sac.actor_delay)
         keep = functools.partial(jax.tree.map, lambda old, new: jp.where(held, old, new))
         new_policy, policy_opt = keep((policy, t.policy_optimizer_state), (new_policy, policy_opt))
+        log_alpha, alpha_opt = keep((t.log_alpha, t.alpha_optimizer_state), (log_alpha, alpha_opt))
         tau = self.config.sac.tau
         target_q = jax.tree.map(lambda x, y: x * (1 - tau) + y * tau, t.target_q, new_q)
         t = t.replace(
