@@ -48,12 +48,9 @@ class RecurrentPolicy:
 
         normalizer, policy, value = self.params
         no_reset = jax.numpy.zeros(jax.tree.leaves(state)[0].shape[:-1])
-        latent = {}
-        if hasattr(self.networks, "intention_size"):  # an intention network's latent (vnl.ppo.intention_core)
-            from vnl.ppo.intention_core import latent_noise
+        from vnl.ppo.intention_core import latent_draw
 
-            rng, key = jax.random.split(rng)
-            latent = {"noise": latent_noise(key, no_reset.shape, self.networks.intention_size, self.deterministic)}
+        latent, rng = latent_draw(self.networks, rng, no_reset.shape, self.deterministic)  # an intention's latent
         logits, state = self.networks.policy_step(normalizer, policy, value, obs, state, no_reset, **latent)
         action, _ = sample(self.networks.parametric_action_distribution, logits, rng, self.deterministic)
         return action, state

@@ -33,7 +33,7 @@ import numpy as np
 
 from vnl.errors import VnlError
 from vnl.policy import LoadedRun
-from vnl.ppo.intention_core import latent_noise
+from vnl.ppo.intention_core import latent_draw
 from vnl.ppo.networks import ACTIVATIONS, make_network
 from vnl.ppo.recurrent import make_recurrent_networks
 from vnl.ppo.sac import make_q_network
@@ -141,11 +141,7 @@ def _with_decoder(run: LoadedRun, out: dict[str, Any], obs: jax.Array, state: An
     if not hasattr(run.env, "decoder_activity"):
         return out, state
     out.update(run.env.decoder_activity(out["action"], obs, state))
-    latent = run.env.latent(out["action"])
-    if state is None:
-        out["body_action"] = run.env.decode(latent, obs)
-    else:
-        out["body_action"], state = run.env.decode(latent, obs, state)
+    out["body_action"], state = run.env.decoded(out["action"], obs, state)
     return out, state
 
 
@@ -216,9 +212,9 @@ def _recurrent_activity(
     new_core = {}
     nets = [("value", networks.value_network, value_params)]
     if run.config.network.architecture == "intention":  # a recurrent decoder (vnl.ppo.intention_core)
-        key, key_latent = jax.random.split(key)
-        noise = latent_noise(key_latent, no_reset.shape, networks.intention_size, deterministic)
-        out, head, new_core["policy"] = networks.policy_activity(normalizer, policy_params, obs, core["policy"], noise)
+        latent, key = latent_draw(networks, key, no_reset.shape, deterministic)
+        activity = networks.policy_activity(normalizer, policy_params, obs, core["policy"], **latent)
+        out, head, new_core["policy"] = activity
         out["action"] = _action(networks.parametric_action_distribution, head, key, deterministic)
     else:
         nets.insert(0, ("policy", networks.policy_network, policy_params))

@@ -65,12 +65,16 @@ class LatentActionEnv(EnvAdapter):
         """Whether the decoder carries a state from step to step (`decoder_state`)."""
         return self.decoder_state is not None
 
-    def body_action(self, state: State, action: jax.Array) -> tuple[jax.Array, Any]:
-        """(the body's action (A,) that the latent action `action` (L,) gives in `state`, the
-        decoder's state after it: None for a feed-forward decoder)."""
+    def decoded(self, action: jax.Array, obs: jax.Array, decoder_state: Any = None) -> tuple[jax.Array, Any]:
+        """(the body's action (..., A) that latent actions `action` (..., L) give on `obs` (..., O)
+        from `decoder_state`, the decoder's state after them: None for a feed-forward decoder)."""
         if self.stateful:
-            return self.decode(self.latent(action), state.obs, state.info["decoder_state"])
-        return self.decode(self.latent(action), state.obs), None
+            return self.decode(self.latent(action), obs, decoder_state)
+        return self.decode(self.latent(action), obs), None
+
+    def body_action(self, state: State, action: jax.Array) -> tuple[jax.Array, Any]:
+        """`decoded` for the latent action `action` (L,) in `state` (its carried decoder state)."""
+        return self.decoded(action, state.obs, state.info.get("decoder_state"))
 
     def decoder_activity(self, action: jax.Array, obs: jax.Array, decoder_state: Any = None) -> dict[str, jax.Array]:
         """The decoder's layers for latent actions `action` (..., L) taken on `obs` (..., O)

@@ -66,10 +66,17 @@ class RecurrentIntentionNet(IntentionNet):
         return self._head(x), mean, log_std, carry
 
 
-def latent_noise(key: jax.Array, batch_shape: tuple[int, ...], size: int, deterministic: bool) -> jax.Array | None:
-    """The latent's standard-normal draw batch_shape + (size,) from `key`; None (the mean) when
-    `deterministic`."""
-    return NO_NOISE if deterministic else jax.random.normal(key, batch_shape + (size,), jp.float32)
+def latent_draw(
+    networks: Any, key: jax.Array, batch_shape: tuple[int, ...], deterministic: bool
+) -> tuple[dict[str, Any], jax.Array]:
+    """({"noise": the latent's draw batch_shape + (L,), or None for the mean} for an intention
+    network's steps, {} for any other network; the key left for the action). The one split that
+    training, loaded policies and recordings share, so their draws agree."""
+    if not hasattr(networks, "intention_size"):
+        return {}, key
+    key, key_latent = jax.random.split(key)
+    shape = batch_shape + (networks.intention_size,)
+    return {"noise": NO_NOISE if deterministic else jax.random.normal(key_latent, shape, jp.float32)}, key
 
 
 @dataclasses.dataclass(frozen=True)

@@ -33,7 +33,7 @@ from brax.training.agents.ppo import losses as ppo_losses
 from brax.training.agents.ppo.losses import compute_gae
 
 from vnl.ppo.intention import NOISE, kl_divergence
-from vnl.ppo.intention_core import latent_noise
+from vnl.ppo.intention_core import latent_draw
 from vnl.ppo.intention_ppo import IntentionPPOLoop
 from vnl.ppo.loop import PPOLoop, TrainingState
 from vnl.ppo.recurrent import RecurrentPPONetworks, make_recurrent_networks
@@ -71,10 +71,7 @@ def actor_step(
     and the reset flags, for the loss's re-run."""
     normalizer, policy_params, value_params = params
     reset = state.done
-    latent: dict[str, Any] = {}
-    if hasattr(networks, "intention_size"):  # the intention's latent is drawn with the action (vnl.ppo.intention_core)
-        key, key_latent = jax.random.split(key)
-        latent = {"noise": latent_noise(key_latent, reset.shape, networks.intention_size, deterministic)}
+    latent, key = latent_draw(networks, key, reset.shape, deterministic)  # an intention network's latent
     logits, _, new_carry = networks.step(normalizer, policy_params, value_params, state.obs, carry, reset, **latent)
     action, policy_extras = sample(networks.parametric_action_distribution, logits, key, deterministic)
     if latent.get("noise") is not None:
