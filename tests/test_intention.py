@@ -221,15 +221,21 @@ def intention_run(tmp_path_factory):
     return out
 
 
-@pytest.mark.slow
-def test_an_intention_run_logs_its_kl_and_resumes_bit_exact(intention_run, tmp_path):
-    rows = [json.loads(line) for line in (intention_run / "metrics.jsonl").read_text().splitlines()]
+def assert_kl_logged_and_resume_bit_exact(run, make_config, res):
+    """`run` (2K steps of `make_config()`) logged a finite, positive `training/intention_kl`, and K
+    steps + `--resume` to 2K in `res` end bit for bit as it did; returns the final arrays."""
+    rows = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
     kls = [r["training/intention_kl"] for r in rows if "training/intention_kl" in r]
     assert kls and all(np.isfinite(kls)) and max(kls) > 0
-    res = tmp_path / "res"
-    trainer.train(config(num_timesteps=K, num_evals=2), res, say=quiet)
+    trainer.train(make_config(num_timesteps=K, num_evals=2), res, say=quiet)
     trainer.resume(res, flags={"ppo": {"num_timesteps": 2 * K}}, say=quiet)
-    assert any("intention_mean" in k for k in assert_same_final_state(res, intention_run))
+    return assert_same_final_state(res, run)
+
+
+@pytest.mark.slow
+def test_an_intention_run_logs_its_kl_and_resumes_bit_exact(intention_run, tmp_path):
+    final = assert_kl_logged_and_resume_bit_exact(intention_run, config, tmp_path / "res")
+    assert any("intention_mean" in k for k in final)
 
 
 @pytest.mark.slow

@@ -5,8 +5,6 @@ forgets at episode starts; a run trained, resumed bit-exact, recorded, loaded an
 
 The env: test_intention's point mass whose observed target is the reference."""
 
-import json
-
 import jax
 import jax.numpy as jp
 import numpy as np
@@ -14,8 +12,11 @@ import pytest
 import xarray as xr
 from brax.training.acme import running_statistics, specs
 from brax.training.agents.ppo.losses import PPONetworkParams
-from resumecheck import assert_same_final_state
-from test_intention import ReferencePoint, reference_env  # noqa: F401 (the fixture registers test_point_ref)
+from test_intention import (  # noqa: F401 (the fixture registers test_point_ref)
+    ReferencePoint,
+    assert_kl_logged_and_resume_bit_exact,
+    reference_env,
+)
 
 from vnl.cli import main
 from vnl.envs import registry
@@ -166,13 +167,8 @@ def lstm_intention_run(tmp_path_factory):
 
 @pytest.mark.slow
 def test_a_recurrent_decoder_run_logs_its_kl_and_resumes_bit_exact(lstm_intention_run, tmp_path):
-    rows = [json.loads(line) for line in (lstm_intention_run / "metrics.jsonl").read_text().splitlines()]
-    kls = [r["training/intention_kl"] for r in rows if "training/intention_kl" in r]
-    assert kls and all(np.isfinite(kls)) and max(kls) > 0
-    res = tmp_path / "res"
-    trainer.train(config(num_timesteps=K, num_evals=2), res, say=quiet)
-    trainer.resume(res, flags={"ppo": {"num_timesteps": 2 * K}}, say=quiet)
-    assert any("decoder_core" in k for k in assert_same_final_state(res, lstm_intention_run))
+    final = assert_kl_logged_and_resume_bit_exact(lstm_intention_run, config, tmp_path / "res")
+    assert any("decoder_core" in k for k in final)
 
 
 @pytest.mark.slow
