@@ -13,10 +13,13 @@ import xarray as xr
 from brax.training.acme import running_statistics, specs
 from brax.training.agents.ppo.losses import PPONetworkParams
 from test_intention import (  # noqa: F401 (the fixture registers test_point_ref)
-    ReferencePoint,
+    K,
+    L,
     assert_kl_logged_and_resume_bit_exact,
+    quiet,
     reference_env,
 )
+from test_intention import config as intention_config
 
 from vnl.cli import main
 from vnl.envs import registry
@@ -33,33 +36,14 @@ from vnl.train import frozen_decoder, trainer
 
 pytestmark = [pytest.mark.xdist_group("intention"), pytest.mark.usefixtures("point_envs")]
 
-K = 1024
-L = 3
-NETWORK = {
-    "architecture": "intention",
-    "core": "lstm",
-    "core_size": 6,
-    "encoder_hidden_layer_sizes": [16],
-    "intention_size": L,
-    "policy_hidden_layer_sizes": [8],
-    "value_hidden_layer_sizes": [8],
-}
+CORE = {"core": "lstm", "core_size": 6, "policy_hidden_layer_sizes": [8]}
+"""test_intention's small network with an LSTM decoder of one MLP layer."""
 SETTINGS = {"entropy_cost": 1e-3, "discounting": 0.97, "reward_scaling": 1.0, "gae_lambda": 0.95}
 SETTINGS["clipping_epsilon"] = 0.2
 
 
 def config(network=None, **ppo):
-    values = {
-        "ppo": {"num_timesteps": 2 * K, "num_evals": 3, "learning_rate": 3e-3, "episode_length": None, **ppo},
-        "env_config": {"impl": "c", "episode_length": 12},
-        "network": {**NETWORK, **(network or {})},
-        "log": {"video": False, "progress": False},
-    }
-    return train_config.build("test_point_ref", "tiny", file_values=values)
-
-
-def quiet(_):
-    pass
+    return intention_config({**CORE, **(network or {})}, **ppo)
 
 
 def setup(cfg=None):
