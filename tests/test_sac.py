@@ -88,6 +88,18 @@ def test_a_sac_run_resumes_bit_exact(sac_run, tmp_path):
     assert ".training.target_q['params']['MLP_0']['hidden_0']['kernel']" in a
 
 
+def test_an_epochs_metrics_average_the_steps_that_updated(tmp_path):
+    """An epoch whose first half waits for `min_replay_size` logs the temperature of its updates
+    (about 1 at a negligible learning rate), not a mean that counts the waiting steps as 0; the
+    entropy is the updates' too."""
+    half = ENVS * 156  # 156 of the epoch's 313 training steps wait
+    slow = config(num_timesteps=K, num_evals=2, min_replay_size=half, learning_rate=1e-9)
+    trainer.train(slow, tmp_path / "r", say=quiet)
+    first = rows(tmp_path / "r")[1]
+    assert first["training/alpha"] == pytest.approx(1.0, abs=1e-4), first
+    assert first["training/policy_entropy"] == pytest.approx(first["training/alpha_loss"] - 0.5, abs=1e-3), first
+
+
 def test_a_sac_run_is_loaded_and_recorded_like_a_ppo_run(sac_run):
     run = load_run(sac_run)
     ds = record.record(run, episodes=2, steps=12)
@@ -133,30 +145,41 @@ def test_what_sac_cannot_train_is_refused_before_compiling(sac_run, tmp_path, ca
     assert not (tmp_path / "r").exists()
 
 
+def one_update(cfg: train_config.TrainConfig):
+    """(the SACLoop of `cfg` on test_point, its initial state, update(state) -> (state after one
+    `_sgd_update` on a fixed random batch of 64 transitions, that update's metrics))."""
+    from vnl.envs import registry
+    from vnl.ppo.loop import AXIS
+    from vnl.ppo.sac import SACLoop, _dummy_transition
+
+    loop = SACLoop(registry.make("test_point", **cfg.env_config), cfg)
+    keys = iter(jax.random.split(jax.random.PRNGKey(1), 8))
+    batch = jax.tree.map(lambda x: jax.random.normal(next(keys), (64,) + x.shape), _dummy_transition(2, 1))
+    step = jax.jit(jax.vmap(loop._sgd_update, axis_name=AXIS))  # its gradients are averaged over AXIS
+    one = functools.partial(jax.tree.map, lambda x: jp.asarray(x)[None])
+
+    def update(state):
+        (after, _), metrics = step(one((state, jax.random.PRNGKey(2))), one(batch))
+        return jax.tree.map(lambda x: x[0], (after, metrics))
+
+    return loop, loop.init_training(jax.random.PRNGKey(0)), update
+
+
 def test_actor_delay_holds_the_policy_and_temperature_while_the_critics_learn():
     """`sac.actor_delay`: an update before that many env steps changes the Q networks only; from
     then on the policy and the temperature too (counted on the 64-bit step counter)."""
     from brax.training.types import UInt64
 
-    from vnl.envs import registry
-    from vnl.ppo.loop import AXIS
-    from vnl.ppo.sac import SACLoop, _dummy_transition, _steps_below
+    from vnl.ppo.sac import _steps_below
 
-    cfg = config(actor_delay=1000)
-    loop = SACLoop(registry.make("test_point", **cfg.env_config), cfg)
-    start = loop.init_training(jax.random.PRNGKey(0))
-    keys = iter(jax.random.split(jax.random.PRNGKey(1), 8))
-    batch = jax.tree.map(lambda x: jax.random.normal(next(keys), (64,) + x.shape), _dummy_transition(2, 1))
-    update = jax.jit(jax.vmap(loop._sgd_update, axis_name=AXIS))  # its gradients are averaged over AXIS
-    one = functools.partial(jax.tree.map, lambda x: jp.asarray(x)[None])
+    loop, start, update = one_update(config(actor_delay=1000))
 
     def same(a, b):
         return all(np.array_equal(x, y) for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True))
 
     for steps, held in ((0, True), (999, True), (1000, False)):
         before = start.replace(env_steps=UInt64(hi=jp.uint32(0), lo=jp.uint32(steps)))
-        (after, _), _ = update(one((before, jax.random.PRNGKey(2))), one(batch))
-        after = jax.tree.map(lambda x: x[0], after)
+        after, _ = update(before)
         assert same(before.params.policy, after.params.policy) == held
         assert same(before.policy_optimizer_state, after.policy_optimizer_state) == held
         assert same(before.log_alpha, after.log_alpha) == held
@@ -166,11 +189,37 @@ def test_actor_delay_holds_the_policy_and_temperature_while_the_critics_learn():
     assert below(1, 4, 2**32 + 5) and not below(1, 5, 2**32 + 5) and not below(1, 0, 5) and not below(0, 0, 0)
     with pytest.raises(VnlError, match="actor_delay"):
         config(actor_delay=-1)
-    # The default (0) leaves a SAC run's hash as it was before the key existed.
+    # The defaults (0, and init_alpha's and target_entropy's) leave a SAC run's hash as it was before the keys existed.
     values = {k: v for k, v in config_lib.to_dict(config()).items() if k not in ("log", "decoder")}
-    del values["sac"]["actor_delay"]
+    for key in ("actor_delay", "init_alpha", "target_entropy"):
+        del values["sac"][key]
     assert config().content_hash() == hashlib.sha256(yaml.safe_dump(values, sort_keys=True).encode()).hexdigest()[:16]
     assert config(actor_delay=5).content_hash() != config().content_hash()
+
+
+def test_the_temperature_starts_at_init_alpha_and_steers_towards_target_entropy():
+    """`sac.init_alpha` is the temperature of a fresh run; `sac.target_entropy` (nats; null:
+    Brax's -0.5 per action dimension) is what its loss compares the policy's entropy with, so a
+    target above the policy's entropy raises the temperature and one below lowers it; each update
+    logs the entropy it measured (training/policy_entropy)."""
+    _, start, update = one_update(config())
+    _, metrics = update(start)
+    entropy = float(metrics["policy_entropy"])
+    alpha_loss = float(metrics["alpha_loss"])
+    assert np.isfinite(entropy) and alpha_loss == pytest.approx(1.0 * (entropy - (-0.5 * 1)), rel=1e-5)
+    for init, target, rises in ((0.01, entropy + 5, True), (0.01, entropy - 5, False), (3.0, entropy + 5, True)):
+        _, start, update = one_update(config(init_alpha=init, target_entropy=target))
+        assert float(jp.exp(start.log_alpha)) == pytest.approx(init, rel=1e-6)
+        after, metrics = update(start)
+        assert float(metrics["policy_entropy"]) == pytest.approx(entropy, rel=1e-5)  # the same policy and batch
+        assert float(metrics["alpha_loss"]) == pytest.approx(init * (entropy - target), rel=1e-4)
+        assert (float(after.log_alpha) > float(start.log_alpha)) == rises
+    for bad in ({"init_alpha": 0.0}, {"init_alpha": float("inf")}, {"target_entropy": float("nan")}):
+        with pytest.raises(VnlError, match=next(iter(bad))):
+            config(**bad)
+    assert config(init_alpha=1.0, target_entropy=None).content_hash() == config().content_hash()
+    hashes = {config(**c).content_hash() for c in ({"init_alpha": 0.1}, {"target_entropy": -3.0}, {})}
+    assert len(hashes) == 3
 
 
 def test_a_ppo_config_keeps_its_hash_from_before_sac():

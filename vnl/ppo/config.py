@@ -5,6 +5,7 @@ is one)."""
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any, Literal, Protocol
 
 from vnl.errors import VnlError
@@ -155,6 +156,11 @@ class SACConfig:
     # Env steps at the run's start in which only the Q networks learn, the policy and the temperature
     # held: a warm-started policy is not pulled about by a fresh critic (docs/how-to/sac.md).
     actor_delay: int = 0
+    # The temperature at the run's start (Brax: 1) and the entropy it steers the policy towards, in
+    # nats (null: Brax's -0.5 per action dimension). A warm-started PPO policy has far less
+    # entropy than Brax's target: docs/how-to/sac.md#the-temperature-of-a-warm-start.
+    init_alpha: float = 1.0
+    target_entropy: float | None = None
 
     def validate(self) -> None:
         for key, most in (("batch_size", MAX_ENVS), ("grad_updates_per_step", 10**4), ("max_replay_size", 2**26)):
@@ -167,9 +173,11 @@ class SACConfig:
             )
         if not 0 <= self.actor_delay <= 2**62:
             raise VnlError(f"actor_delay must be in 0..2**62 env steps, got {self.actor_delay:,}")
-        for key in ("learning_rate", "reward_scaling"):
-            if not getattr(self, key) > 0:
-                raise VnlError(f"{key} must be > 0, got {getattr(self, key)}")
+        if self.target_entropy is not None and not math.isfinite(self.target_entropy):
+            raise VnlError(f"target_entropy must be a finite number of nats or null, got {self.target_entropy}")
+        for key in ("learning_rate", "reward_scaling", "init_alpha"):
+            if not (getattr(self, key) > 0 and math.isfinite(getattr(self, key))):
+                raise VnlError(f"{key} must be a finite number > 0, got {getattr(self, key)}")
         for key in ("discounting", "tau"):
             if not 0 < getattr(self, key) <= 1:
                 raise VnlError(f"{key} must be in (0, 1], got {getattr(self, key)}")

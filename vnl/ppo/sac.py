@@ -115,12 +115,12 @@ class SACLoop(PPOLoop):
             q_network=self.q_network,
             parametric_action_distribution=self.network.parametric_action_distribution,
         )
-        alpha_loss, critic_loss, actor_loss = sac_losses.make_losses(
-            sac_network, s.reward_scaling, s.discounting, env.action_size
-        )
+        losses = sac_losses.make_losses(sac_network, s.reward_scaling, s.discounting, env.action_size)
+        _, critic_loss, actor_loss = losses  # the temperature's loss is vnl's (make_alpha_loss)
+        target = -0.5 * env.action_size if s.target_entropy is None else s.target_entropy
         self.sac_optimizer = optax.adam(learning_rate=s.learning_rate)
         update = functools.partial(gradients.gradient_update_fn, optimizer=self.sac_optimizer, pmap_axis_name=AXIS)
-        self._alpha_update = update(alpha_loss)
+        self._alpha_update = update(make_alpha_loss(sac_network, target), has_aux=True)
         self._critic_update = update(critic_loss)
         self._actor_update = update(actor_loss)
         self.replay = replay_buffers.UniformSamplingQueue(
@@ -130,12 +130,12 @@ class SACLoop(PPOLoop):
         )
 
     def init_training(self, key: jax.Array) -> SACTrainingState:  # type: ignore[override]
-        """The state before training: fresh networks from `key`, target Q = Q, temperature 1, an
-        empty replay buffer and normalizer, 0 env steps."""
+        """The state before training: fresh networks from `key`, target Q = Q, the temperature
+        `sac.init_alpha`, an empty replay buffer and normalizer, 0 env steps."""
         key_policy, key_q, key_replay = jax.random.split(key, 3)
         policy = self.network.policy_network.init(key_policy)
         q = self.q_network.init(key_q)
-        log_alpha = jp.zeros((), jp.float32)
+        log_alpha = jp.log(jp.asarray(self.config.sac.init_alpha, jp.float32))
         return SACTrainingState(
             params=ppo_losses.PPONetworkParams(policy=policy, value=q),
             target_q=q,
@@ -152,7 +152,7 @@ class SACLoop(PPOLoop):
     def _training_step(self, carry: tuple[Any, Any, jax.Array], _: Any) -> tuple[Any, Any]:
         """Every env steps once (its transitions into the buffer, the normalizer updated on them),
         then `grad_updates_per_step` updates once the buffer holds `min_replay_size` (else none;
-        the metrics are then zeros)."""
+        the metrics are then zeros and `updated` 0)."""
         s = self.config.sac
         training, env_state, key = carry
         key_act, key_sgd, new_key = jax.random.split(key, 3)
@@ -178,7 +178,20 @@ class SACLoop(PPOLoop):
 
         training, metrics = jax.lax.cond(ready, learn, wait, training)
         metrics["replay_size"] = self.replay.size(replay).astype(jp.float32)
+        metrics["updated"] = ready.astype(jp.float32)
         return (training, env_state, new_key), metrics
+
+    def _training_epoch(self, training: Any, env_state: Any, key: jax.Array) -> tuple[Any, Any, Any]:
+        """`PPOLoop`'s epoch with SAC's metrics: the losses, the temperature and the entropy are
+        means over the training steps that updated (0 in an epoch without updates), the replay
+        size over all of them."""
+        (training, env_state, _), metrics = jax.lax.scan(
+            self._training_step, (training, env_state, key), (), length=self.training_steps_per_epoch
+        )
+        updated = metrics.pop("updated")
+        n = jp.maximum(jp.sum(updated), 1.0)
+        means = {k: jp.sum(v * updated) / n for k, v in metrics.items() if k != "replay_size"}
+        return training, env_state, {**means, "replay_size": jp.mean(metrics["replay_size"])}
 
     def _sgd_update(self, carry: tuple[SACTrainingState, jax.Array], batch: Any) -> tuple[Any, dict[str, Any]]:
         """One update of the temperature, the Q networks and the policy on `batch` (Brax's
@@ -186,7 +199,7 @@ class SACLoop(PPOLoop):
         t, key = carry
         key, key_alpha, key_critic, key_actor = jax.random.split(key, 4)
         normalizer, policy, q = t.normalizer_params, t.params.policy, t.params.value
-        alpha_loss, log_alpha, alpha_opt = self._alpha_update(
+        (alpha_loss, entropy), log_alpha, alpha_opt = self._alpha_update(
             t.log_alpha, policy, normalizer, batch, key_alpha, optimizer_state=t.alpha_optimizer_state
         )
         alpha = jp.exp(t.log_alpha)
@@ -218,8 +231,26 @@ class SACLoop(PPOLoop):
             "actor_loss": actor_loss,
             "alpha_loss": alpha_loss,
             "alpha": jp.exp(log_alpha),
+            "policy_entropy": entropy,
         }
         return (t, key), metrics
+
+
+def make_alpha_loss(sac_network: Any, target_entropy: float) -> Any:
+    """The temperature's loss, Brax's (eq. 18 of Haarnoja et al. 2018, arXiv:1812.05905) with the
+    target entropy a parameter (Brax fixes it at -0.5 nats per action dimension):
+    loss(log_alpha (), policy, normalizer, batch (B, ...), key) -> (loss (), the policy's entropy
+    estimate on the batch, mean -log_prob of its sampled actions, ())."""
+    policy_network = sac_network.policy_network
+    distribution = sac_network.parametric_action_distribution
+
+    def alpha_loss(log_alpha: jax.Array, policy: Any, normalizer: Any, batch: Any, key: jax.Array) -> Any:
+        dist_params = policy_network.apply(normalizer, policy, batch.observation)
+        action = distribution.sample_no_postprocessing(dist_params, key)
+        entropy = jax.lax.stop_gradient(-distribution.log_prob(dist_params, action))
+        return jp.mean(jp.exp(log_alpha) * (entropy - target_entropy)), jp.mean(entropy)
+
+    return alpha_loss
 
 
 def _steps_below(steps: brax_types.UInt64, limit: int) -> jax.Array:

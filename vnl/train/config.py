@@ -328,8 +328,9 @@ class TrainConfig:
         values = {k: v for k, v in config_lib.to_dict(self).items() if k != "log"}
         if self.decoder == DecoderConfig():
             values.pop("decoder")
-        if self.sac.actor_delay == 0:  # SAC runs from before actor_delay keep their hash
-            values["sac"].pop("actor_delay")
+        for key, default in (("actor_delay", 0), ("init_alpha", 1.0), ("target_entropy", None)):
+            if getattr(self.sac, key) == default:  # SAC runs from before the key keep their hash
+                values["sac"].pop(key)
         if self.algorithm == "ppo" and self.sac == SACConfig():  # runs from before SAC keep their hash
             values.pop("algorithm")
             values.pop("sac")
