@@ -206,3 +206,45 @@ def test_one_task_of_a_suite_is_evaluated_not_trained(tmp_path):
     with pytest.raises(VnlError, match="picks one task of test_suite"):
         trainer.train(config(env_config={"task": "test_point"}), tmp_path / "run", say=quiet)
     assert not (tmp_path / "run").exists()
+
+
+SUITE_ON_TWO_DEVICES = """
+import json, sys
+sys.path.insert(0, {tests!r})
+import tiny_env; tiny_env.register()
+import jax
+import test_suite_training as t
+from vnl.train import trainer
+trainer.train(t.config(ppo={{"num_timesteps": t.K, "num_evals": 2}}), {run!r}, say=lambda _: None)
+print("RESULT" + json.dumps({{"devices": jax.device_count()}}))
+"""
+
+
+@pytest.mark.slow
+@pytest.mark.xdist_group("suite")
+def test_a_suite_trained_on_two_devices_resumes_on_one_with_each_row_its_members(tmp_path):
+    """A suite's first epoch on two (emulated) devices, each holding its share of both tasks, then
+    the run resumed on this process's one device: the checkpoint's observation rows are member-major
+    (every test_point row before every test_plane row, 1:3), each task evaluated on its own in both."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    script = SUITE_ON_TWO_DEVICES.format(tests=str(root / "tests"), run=str(tmp_path / "run"))
+    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
+    p = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, cwd=root, env=env, timeout=900)
+    assert p.returncode == 0, p.stdout[-3000:] + p.stderr[-3000:]
+    assert json.loads(p.stdout.split("RESULT")[-1]) == {"devices": 2}
+    _, arrays, _ = checkpoint.load_train_state(tmp_path / "run")
+    obs = arrays[".env.obs"]
+    task = obs[:, -2:]  # the suite's one-hot task block: (1, 0) test_point, (0, 1) test_plane
+    n = len(obs)
+    assert n % 8 == 0 and task[: n // 4].tolist() == [[1.0, 0.0]] * (n // 4), task
+    assert task[n // 4 :].tolist() == [[0.0, 1.0]] * (3 * n // 4), task
+    trainer.resume(tmp_path / "run", flags={"ppo": {"num_timesteps": 2 * K}}, say=quiet)
+    records = metrics_io.read(tmp_path / "run" / "metrics.jsonl")
+    assert [r["step"] for r in records] == [0, K, 2 * K]
+    for r in records:
+        assert r["eval/test_point/avg_episode_length"] == 12 and r["eval/test_plane/avg_episode_length"] == 9
