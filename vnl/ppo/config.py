@@ -158,7 +158,7 @@ class SACConfig:
     actor_delay: int = 0
     # The temperature at the run's start (Brax: 1) and the entropy it steers the policy towards, in
     # nats (null: Brax's -0.5 per action dimension). A warm-started PPO policy has far less
-    # entropy than Brax's target: docs/how-to/sac.md#the-temperature-of-a-warm-start.
+    # entropy than Brax's target: docs/how-to/sac.md#the-temperature-of-a-warm-start-2026-11-29.
     init_alpha: float = 1.0
     target_entropy: float | None = None
 
