@@ -23,11 +23,13 @@ def env(name: str, **overrides):
     return vnl.make(name, impl="c", **overrides)
 
 
-def _react(e, state, quat):
-    """`e.react` on the rat placed (kinematically) where `state` has it, with orientation `quat`."""
+def _react(e, state, quat, lower: float = 0.0):
+    """`e.react` on the rat placed (kinematically) where `state` has it, with orientation `quat`,
+    `lower` m lower."""
     q = np.array(state.data.qpos, np.float32)
     root = e._free_qpos
     q[root + 3 : root + 7] = quat
+    q[root + 2] -= lower
     if hasattr(e, "prepare"):  # two-touch's step begins with it
         state = e.prepare(state)
     data = e.forward(e.make_data(qpos=jp.asarray(q), mocap_pos=state.data.mocap_pos))
@@ -57,6 +59,23 @@ def test_a_fall_ends_the_episode_and_staying_up_pays(name, overrides):
 
 
 @pytest.mark.parametrize("name", ["rodent_maze_forage", "rodent_two_touch"])
+def test_a_torso_below_healthy_min_height_is_a_fall_whatever_its_tilt(name):
+    """`healthy_min_height` (m above the floor): the rat upright at its start height (its torso
+    ~0.067 m up) goes on; the same pose 4 cm lower, still level, has fallen, as a rat on its belly
+    has, though the tilt check alone passes it."""
+    e = env(name, healthy_min_height=0.035, healthy_reward=0.05)
+    state = jax.jit(e.reset)(jax.random.PRNGKey(3))
+    level = np.array(state.data.qpos[e._free_qpos + 3 : e._free_qpos + 7])
+    assert 0.04 < float(state.data.xpos[e._root, 2]) < 0.07
+    up = _react(e, state, level)
+    assert float(up.done) == 0.0 and float(up.metrics["fell"]) == 0.0
+    assert float(up.metrics["reward/healthy"]) == pytest.approx(0.05)
+    low = _react(e, state, level, lower=0.04)
+    assert float(low.data.xpos[e._root, 2]) < 0.035 and float(e.upright_cosine(low.data)) > 0.99
+    assert float(low.done) == 1.0 and float(low.metrics["fell"]) == 1.0 and float(low.metrics["reward/healthy"]) == 0
+
+
+@pytest.mark.parametrize("name", ["rodent_maze_forage", "rodent_two_touch"])
 def test_dm_controls_tasks_have_no_fall_rule(name):
     """As dm_control's rat: on its back, the episode goes on and nothing is paid for staying up."""
     e = env(name)
@@ -81,6 +100,8 @@ def test_the_variant_is_the_maze_with_the_fall_rules_alone():
         ({"healthy_reward": 0.05}, "set healthy_min_upright"),
         ({"healthy_min_upright": 1.5}, "cosine of the largest tilt"),
         ({"healthy_min_upright": 0.0, "healthy_reward": -1.0}, "healthy_reward must be >= 0"),
+        ({"healthy_min_height": -0.1}, "healthy_min_height must be in"),
+        ({"healthy_min_height": float("nan")}, "healthy_min_height"),
     ],
 )
 def test_bad_fall_rules_are_refused_before_compiling(overrides, words):

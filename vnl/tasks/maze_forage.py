@@ -242,7 +242,7 @@ class MazeForage(WalkerTask):
         seen_before = jp.sum(state.info["visited"])
         visited = jp.where(ok > 0, state.info["visited"].at[cell[0], cell[1]].set(True), state.info["visited"])
         seen = (jp.sum(visited) - seen_before).astype(jp.float32) / self.free_cells(layout)
-        fall, fell = fall_terms(cfg, self.upright_cosine(data), ok)
+        fall, fell = fall_terms(cfg, self.upright_cosine(data), data.xpos[self._root, 2], ok)
         targets = cfg.target_reward * n_new
         reward = targets + sum(fall.values(), jp.zeros((), jp.float32))
         done = jp.maximum(jp.maximum(jp.all(collected).astype(jp.float32), blew_up), fell)

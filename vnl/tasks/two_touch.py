@@ -250,7 +250,7 @@ class TwoTouch(WalkerTask):
         touching = (self.touches(data) * ok) > 0
         info, events = self.advance(state.info, t, touching)
         closeness = CLOSENESS_SCALE * cfg.touch_reward * self.closeness(data) * ok
-        fall, fell = fall_terms(cfg, self.upright_cosine(data), ok)
+        fall, fell = fall_terms(cfg, self.upright_cosine(data), data.xpos[self._root, 2], ok)
         terms = {
             "closeness": closeness,
             "first_touch": cfg.touch_reward * events["first_touch"],
