@@ -398,7 +398,11 @@ class PPOLoop:
         (training, env_state, _), metrics = jax.lax.scan(
             self._training_step, (training, env_state, key), (), length=self.training_steps_per_epoch
         )
-        return training, env_state, jax.tree.map(jp.mean, metrics)
+        return training, env_state, self._epoch_metrics(metrics)
+
+    def _epoch_metrics(self, metrics: dict[str, jax.Array]) -> dict[str, jax.Array]:
+        """The epoch's metrics from its training steps' (each (training_steps_per_epoch,)): their means."""
+        return jax.tree.map(jp.mean, metrics)
 
     def _training_step(self, carry: tuple[Any, Any, jax.Array], _: Any) -> tuple[Any, Any]:
         p = self.config.ppo

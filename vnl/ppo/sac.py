@@ -181,17 +181,14 @@ class SACLoop(PPOLoop):
         metrics["updated"] = ready.astype(jp.float32)
         return (training, env_state, new_key), metrics
 
-    def _training_epoch(self, training: Any, env_state: Any, key: jax.Array) -> tuple[Any, Any, Any]:
-        """`PPOLoop`'s epoch with SAC's metrics: the losses, the temperature and the entropy are
-        means over the training steps that updated (0 in an epoch without updates), the replay
-        size over all of them."""
-        (training, env_state, _), metrics = jax.lax.scan(
-            self._training_step, (training, env_state, key), (), length=self.training_steps_per_epoch
-        )
+    def _epoch_metrics(self, metrics: dict[str, jax.Array]) -> dict[str, jax.Array]:
+        """The losses, the temperature and the entropy averaged over the training steps that
+        updated (0 in an epoch without updates), the replay size over all of them."""
+        metrics = dict(metrics)
         updated = metrics.pop("updated")
         n = jp.maximum(jp.sum(updated), 1.0)
         means = {k: jp.sum(v * updated) / n for k, v in metrics.items() if k != "replay_size"}
-        return training, env_state, {**means, "replay_size": jp.mean(metrics["replay_size"])}
+        return {**means, "replay_size": jp.mean(metrics["replay_size"])}
 
     def _sgd_update(self, carry: tuple[SACTrainingState, jax.Array], batch: Any) -> tuple[Any, dict[str, Any]]:
         """One update of the temperature, the Q networks and the policy on `batch` (Brax's
