@@ -9,6 +9,7 @@ what to pass as `sac.target_entropy` when a SAC run warm-starts from it (docs/ho
 from __future__ import annotations
 
 import argparse
+import types
 
 import jax
 import jax.numpy as jp
@@ -25,6 +26,7 @@ def main() -> None:
     from vnl import record
     from vnl.policy import load_run
     from vnl.ppo.networks import make_network
+    from vnl.ppo.sac import make_alpha_loss
 
     run = load_run(args.run, step=args.step)
     if run.config.network.core or run.config.network.architecture != "brax":
@@ -33,10 +35,10 @@ def main() -> None:
     obs = jp.asarray(ds["observation"].values.reshape(-1, ds["observation"].shape[-1]))
     network = make_network(run.config, run.env)
     normalizer, policy, _ = run.params
-    dist_params = network.policy_network.apply(normalizer, policy, obs)
-    distribution = network.parametric_action_distribution
-    action = distribution.sample_no_postprocessing(dist_params, jax.random.PRNGKey(0))
-    entropy = float(jp.mean(-distribution.log_prob(dist_params, action)))
+    # SAC's own temperature loss measures it (its second output); the target does not enter the entropy.
+    batch = types.SimpleNamespace(observation=obs)
+    _, entropy = make_alpha_loss(network, 0.0)(jp.zeros(()), policy, normalizer, batch, jax.random.PRNGKey(0))
+    entropy = float(entropy)
     print(
         f"{run.run_dir} step {run.step:,}: entropy {entropy:.1f} nats over {obs.shape[0]:,} observations "
         f"({run.env.action_size} actions; Brax's SAC target: {-0.5 * run.env.action_size:.1f})"
