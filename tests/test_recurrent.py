@@ -3,9 +3,6 @@ reset at every episode boundary, checkpointed for exact resume, carried by every
 training; and cue_memory, the task that needs it."""
 
 import json
-import os
-import subprocess
-import sys
 import textwrap
 from pathlib import Path
 
@@ -14,6 +11,7 @@ import jax.numpy as jp
 import numpy as np
 import pytest
 import xarray as xr
+from two_devices import run_on_two_devices
 
 from vnl.cli import main
 from vnl.envs import registry
@@ -254,10 +252,7 @@ def test_a_recurrent_curriculum_trains_on_two_devices(tmp_path):
     """A GRU through a two-stage curriculum on two devices (the cores' states split over the
     devices as the envs are, reset with the envs at the stage switch)."""
     script = CURRICULUM_ON_TWO_DEVICES.format(tests=str(ROOT / "tests"), run=str(tmp_path / "run"))
-    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
-    p = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, cwd=ROOT, env=env, timeout=900)
-    assert p.returncode == 0, p.stdout[-3000:] + p.stderr[-3000:]
-    result = json.loads(p.stdout.split("RESULT")[-1])
+    result, _ = run_on_two_devices(script)
     assert result == {"devices": 2, "steps": 2048}
     records = metrics_io.read(tmp_path / "run" / "metrics.jsonl")
     assert [r["curriculum/stage"] for r in records] == [0, 0, 0, 1, 1]

@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 from mujoco import mjx
 from tiny_env import XML as POINT_XML
+from two_devices import run_on_two_devices
 
 from vnl import typed_config as config_lib
 from vnl.envs import randomize, registry
@@ -201,10 +202,7 @@ def test_trains_on_two_devices_and_the_checkpoint_resumes_on_one(tmp_path):
     script = TWO_DEVICES.format(
         tests=str(ROOT / "tests"), bad=str(tmp_path / "bad"), run=str(tmp_path / "run"), params=str(params_file)
     )
-    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
-    p = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, cwd=ROOT, env=env, timeout=900)
-    assert p.returncode == 0, p.stdout[-3000:] + p.stderr[-3000:]
-    result = json.loads(p.stdout.split("RESULT")[-1])
+    result, p = run_on_two_devices(script)
     assert result["devices"] == 2
     assert result["bad_rc"] == 2 and "multiples of the number of devices (2)" in p.stderr
     assert result["rc"] == 0

@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 from test_compact_checkpoints import KEPT, assert_same_run, physics_fields, quiet
+from two_devices import ROOT, run_on_two_devices
 
 from vnl.cli import main
 from vnl.errors import VnlError
@@ -226,17 +227,8 @@ def test_a_suite_trained_on_two_devices_resumes_on_one_with_each_row_its_members
     """A suite's first epoch on two (emulated) devices, each holding its share of both tasks, then
     the run resumed on this process's one device: the checkpoint's observation rows are member-major
     (every test_point row before every test_plane row, 1:3), each task evaluated on its own in both."""
-    import os
-    import subprocess
-    import sys
-    from pathlib import Path
-
-    root = Path(__file__).resolve().parents[1]
-    script = SUITE_ON_TWO_DEVICES.format(tests=str(root / "tests"), run=str(tmp_path / "run"))
-    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
-    p = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, cwd=root, env=env, timeout=900)
-    assert p.returncode == 0, p.stdout[-3000:] + p.stderr[-3000:]
-    assert json.loads(p.stdout.split("RESULT")[-1]) == {"devices": 2}
+    script = SUITE_ON_TWO_DEVICES.format(tests=str(ROOT / "tests"), run=str(tmp_path / "run"))
+    assert run_on_two_devices(script)[0] == {"devices": 2}
     _, arrays, _ = checkpoint.load_train_state(tmp_path / "run")
     obs = arrays[".env.obs"]
     task = obs[:, -2:]  # the suite's one-hot task block: (1, 0) test_point, (0, 1) test_plane
