@@ -64,6 +64,35 @@ class PointMass(Env):
         return [("offset", 1), ("velocity", 1)] + ([("target", 1)] if self.config.observe_target else [])
 
 
+class LevelPoint(PointMass):
+    """test_point whose target is a level field (`vnl.envs.levels`): each episode's target is
+    drawn by `reset_with` and kept in `info`; `measure/near` counts the steps within 0.1 of it."""
+
+    level_fields = ("target",)
+
+    def reset(self, rng: jax.Array) -> State:
+        return self.reset_with(rng, {})
+
+    def reset_with(self, rng: jax.Array, values: dict) -> State:
+        target = jp.asarray(values.get("target", self.config.target), jp.float32)
+        x0 = jax.random.uniform(rng, (1,), minval=-0.2, maxval=0.2)
+        data = self.forward(self.make_data(qpos=x0))
+        zero = jp.zeros(())
+        metrics = {"reward/distance": zero, "physics_nan": zero, "measure/near": zero}
+        return State(data, self._obs_at(data, target), zero, zero, metrics, {"rng": rng, "target": target})
+
+    def step(self, state: State, action: jax.Array) -> State:
+        target = state.info["target"]
+        data, blew_up = self.physics_step(state.data, self.sanitize_action(action))
+        offset = jp.abs(data.qpos[0] - target)
+        near = (offset < 0.1).astype(jp.float32)
+        metrics = {**state.metrics, "reward/distance": -offset, "physics_nan": blew_up, "measure/near": near}
+        return state.replace(data=data, obs=self._obs_at(data, target), reward=-offset, done=blew_up, metrics=metrics)
+
+    def _obs_at(self, data, target: jax.Array) -> jax.Array:
+        return jp.stack([data.qpos[0] - target, data.qvel[0]]).astype(jp.float32)
+
+
 PLANE_XML = """
 <mujoco>
   <option timestep="0.02"/>
@@ -108,6 +137,7 @@ def register() -> None:
         "test_point_unstable", PointMass, PointConfig(blow_up_above=0.8), "test-only point mass that blows up"
     )
     registry.register("test_suite", *suite_members(), "test-only suite of test_point and test_plane")
+    registry.register("test_point_levels", LevelPoint, PointConfig(impl="c"), "test-only point mass with levels")
 
 
 def suite_members(**point: object) -> tuple:
@@ -124,3 +154,4 @@ def unregister() -> None:
     registry.unregister("test_point")
     registry.unregister("test_point_unstable")
     registry.unregister("test_suite")
+    registry.unregister("test_point_levels")

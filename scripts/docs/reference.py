@@ -289,6 +289,8 @@ def env_markdown(name: str) -> str:
         f"- task measures (`metrics['measure/<name>']`, summed over an episode; `eval/episode_measure/<name>` "
         f"in metrics.jsonl): {', '.join(f'`{m}`' for m in measures) or 'none'}",
         f"- cameras (`vnl render --camera`): {', '.join(f'`{c}`' for c in cameras)}",
+        f"- level fields (what [terrain levels](../../how-to/curricula.md#terrain-levels) may vary per episode, "
+        f"`levels.easiest`): {', '.join(f'`{f}`' for f in getattr(env, 'level_fields', ())) or 'none'}",
         *_suite_lines(env),
         "",
         "## The task",

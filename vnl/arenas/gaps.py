@@ -142,12 +142,16 @@ def build(
     return root
 
 
-def sample_layout(rng: jax.Array, params: GapsParams) -> Layout:
-    """Draws a corridor: gapless platforms up to `start_length`, then platforms and gaps."""
+def sample_layout(rng: jax.Array, params: GapsParams, gap_length: jax.Array | None = None) -> Layout:
+    """Draws a corridor: gapless platforms up to `start_length`, then platforms and gaps.
+
+    `gap_length` (shape (2,), may be traced: one env's terrain level, `vnl.envs.levels`) replaces
+    `params.gap_length`'s (low, high) range (the model's platform boxes do not depend on it)."""
     n = params.max_platforms
     k1, k2 = jax.random.split(rng)
     length = jax.random.uniform(k1, (n,), minval=params.platform_length[0], maxval=params.platform_length[1])
-    gap = jax.random.uniform(k2, (n,), minval=params.gap_length[0], maxval=params.gap_length[1])
+    lo, hi = params.gap_length if gap_length is None else (gap_length[0], gap_length[1])
+    gap = jax.random.uniform(k2, (n,), minval=lo, maxval=hi)
     # Platform i starts after platforms 0..i-1 and their gaps; no gap while inside the start region.
     end_without_gaps = jp.cumsum(length)
     in_start = jp.concatenate([jp.array([True]), end_without_gaps[:-1] < params.start_length])

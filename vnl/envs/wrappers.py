@@ -15,7 +15,9 @@ import jax
 import jax.numpy as jp
 from brax.envs.wrappers import training as brax_training
 
+from vnl.envs.levels import LevelsAutoResetWrapper, LevelsConfig
 from vnl.envs.randomize import RandomizedVmapWrapper
+from vnl.errors import VnlError
 from vnl.tasks.contract import State
 from vnl.vision.env import VisionEnv
 
@@ -113,13 +115,16 @@ def wrap_for_training(
     action_repeat: int = 1,
     randomization_fn: Callable[..., Any] | None = None,
     axis_name: str | None = None,
+    levels: tuple[dict[str, Any], LevelsConfig] | None = None,
 ) -> brax_training.Wrapper:
     """Vmap + episode limit + auto-reset; the `wrap_env_fn` hook of `brax...ppo.train`.
 
     `randomization_fn(mjx_model) -> (batched_model, in_axes)` (Brax's hook with its rng bound,
     see `vnl.envs.randomize`) gives every env its own physical parameters; `axis_name` is the
     pmap axis when that batch spans all devices. A `vnl.vision.VisionEnv` is stepped blind and
-    batched, then every env's image is rendered at once (`Camera.render_batch`).
+    batched, then every env's image is rendered at once (`Camera.render_batch`). `levels`, a
+    table of per-level field values and its config (`vnl.envs.levels.level_table`), gives every
+    env its own terrain level (training envs only; not with randomization or a camera).
     """
     vision = env if isinstance(env, VisionEnv) else None
     if vision is not None:  # step the blind env batched, then render every env's image at once
@@ -131,4 +136,8 @@ def wrap_for_training(
     if vision is not None:
         env = PixelsWrapper(env, vision)
     env = EpisodeWrapper(env, episode_length, action_repeat)
+    if levels is not None:
+        if vision is not None or randomization_fn is not None:
+            raise VnlError("levels cannot train with --vision or randomize yet; turn one of them off")
+        return LevelsAutoResetWrapper(env, *levels)
     return AutoResetWrapper(env)

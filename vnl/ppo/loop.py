@@ -42,6 +42,7 @@ from brax.training.agents.ppo import losses as ppo_losses
 from brax.training.agents.ppo import optimizer as ppo_optimizer
 from brax.training.agents.ppo.train import TrainingState
 
+from vnl.envs import levels as levels_lib
 from vnl.envs import randomize
 from vnl.envs.wrappers import wrap_for_training
 from vnl.errors import VnlError
@@ -141,7 +142,12 @@ class PPOLoop:
         if self.suite:
             suite_loop.check(env, config, self.local_envs // self.n_devices)
         train_models, eval_models = self._randomized_models(env)
-        self.env = suite_loop.training_env(env, config) if self.suite else self._wrap(env, train_models, AXIS)
+        # Terrain levels (vnl.envs.levels) for the training envs; evaluations use the task itself.
+        self.levels = None if self.suite else levels_lib.level_table(env, config.levels)
+        if self.suite:
+            self.env = suite_loop.training_env(env, config)
+        else:
+            self.env = self._wrap(env, train_models, AXIS, levels=self.levels)
         self.task_env = env  # the unwrapped env being trained
         self.observation_size = env.observation_size
         self.action_size = env.action_size
@@ -170,11 +176,17 @@ class PPOLoop:
             self._evaluator = self._make_evaluator(self._wrap(env, eval_models), p.num_eval_envs, self.episode_length)
         self.training_walltime = 0.0
 
-    def _wrap(self, env: Any, models: Any, axis_name: str | None = None) -> Any:
-        """`env` wrapped for training or evaluation (`wrap_for_training`), with `models`' randomization."""
+    def _wrap(self, env: Any, models: Any, axis_name: str | None = None, levels: Any = None) -> Any:
+        """`env` wrapped for training or evaluation (`wrap_for_training`), with `models`' randomization
+        and, for training, `levels` (a `level_table`, or None)."""
         p = self.config.ppo
         return wrap_for_training(
-            env, self.episode_length, p.action_repeat, randomization_fn=models, axis_name=axis_name
+            env,
+            self.episode_length,
+            p.action_repeat,
+            randomization_fn=models,
+            axis_name=axis_name,
+            levels=None if levels is None else (levels, self.config.levels),
         )
 
     # ---- what a recurrent loop (vnl.ppo.recurrent_ppo) replaces -----------------------------------
@@ -373,8 +385,19 @@ class PPOLoop:
             "training/sps": self.env_steps_per_epoch / elapsed,
             "training/walltime": self.training_walltime,
             **{f"training/{k}": v for k, v in metrics.items()},
+            **self._level_metrics(env),
         }
         return state.replace(training=training, env=env, key=key), metrics
+
+    def _level_metrics(self, env: Any) -> dict[str, float]:
+        """With terrain levels: `training/level`, the training envs' mean level as a fraction of the
+        way to the task's own terrain (0: all at the easiest, 1: all at the task's), and
+        `training/level_top`, the share of envs at the task's own level. This process's envs."""
+        if self.levels is None:
+            return {}
+        level = np.asarray(env.info[levels_lib.LEVEL])
+        top = self.config.levels.count - 1
+        return {"training/level": float(np.mean(level) / top), "training/level_top": float(np.mean(level == top))}
 
     def evaluate(self, state: LoopState, training_metrics: dict[str, float]) -> tuple[LoopState, dict[str, Any]]:
         """Brax's evaluation (`num_eval_envs` episodes) of the current policy; a suite's tasks one

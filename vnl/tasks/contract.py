@@ -70,6 +70,11 @@ class Env(abc.ABC):
     (`vnl.physics.derived_paths`); None (unknown) keeps all of it. How to find them:
     docs/experiments/compact-checkpoints.md."""
 
+    level_fields: tuple[str, ...] = ()
+    """The env config fields (dotted paths, e.g. `corridor.gap_length`) that `reset_with` can set per
+    episode, inside jit: what terrain levels (`vnl.envs.levels`, an automatic curriculum) vary from
+    env to env. An env that declares none cannot train with levels."""
+
     reference_blocks: tuple[str, ...] = ()
     """The names of the `observation_layout` blocks that show a reference to follow (an imitation
     task's next frames of the motion to track), the rest being the animal's own senses. The
@@ -100,6 +105,12 @@ class Env(abc.ABC):
     @abc.abstractmethod
     def reset(self, rng: jax.Array) -> State:
         """New episode from `rng` (a PRNG key, shape (2,))."""
+
+    def reset_with(self, rng: jax.Array, values: dict[str, jax.Array]) -> State:
+        """New episode from `rng` with some of `level_fields` set to `values` (arrays of the
+        fields' shapes, may be traced); a field not in `values` keeps the config's value, so
+        `reset_with(rng, {})` is `reset(rng)`."""
+        raise NotImplementedError(f"{type(self).__name__} declares no level_fields")
 
     @abc.abstractmethod
     def step(self, state: State, action: jax.Array) -> State:

@@ -210,10 +210,17 @@ class RunGaps(WalkerTask):
             [g for g in range(model.ngeom) if model.body(model.geom_bodyid[g]).name.startswith("platform_")], dtype=int
         )
 
+    # Terrain levels (vnl.envs.levels) draw each env's gaps from its own range.
+    level_fields = ("corridor.gap_length",)
+
     def reset(self, rng: jax.Array) -> State:
+        return self.reset_with(rng, {})
+
+    def reset_with(self, rng: jax.Array, values: dict[str, jax.Array]) -> State:
+        """`reset`, with the gaps drawn from `values["corridor.gap_length"]` (shape (2,)) if given."""
         cfg: RunGapsConfig = self._config
         rng, k_layout, k_pose, k_vel = jax.random.split(rng, 4)
-        layout = gaps.sample_layout(k_layout, self._params)
+        layout = gaps.sample_layout(k_layout, self._params, values.get("corridor.gap_length"))
         qpos = self.initial_qpos(k_pose, jp.array([cfg.spawn_x, 0.0, self._spawn_z]))
         noise = cfg.reset_noise_scale
         qvel = jax.random.uniform(k_vel, (self._mj_model.nv,), minval=-noise, maxval=noise)

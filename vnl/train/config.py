@@ -15,6 +15,7 @@ import yaml
 
 from vnl import typed_config as config_lib
 from vnl.envs import registry
+from vnl.envs.levels import LevelsConfig, check_fields
 from vnl.envs.randomize import RandomizeConfig
 from vnl.envs.suite import SuiteConfig
 from vnl.errors import VnlError
@@ -167,6 +168,7 @@ class TrainConfig:
     vision: VisionConfig = VisionConfig()  # pixel observations from an in-graph camera (vnl.vision)
     init: InitConfig = InitConfig()  # warm start from another run (vnl.train.warm_start)
     curriculum: tuple[StageConfig, ...] = ()  # stages of env_config overrides (vnl.train.curriculum)
+    levels: LevelsConfig = LevelsConfig()  # terrain levels, an automatic curriculum (vnl.envs.levels)
     decoder: DecoderConfig = DecoderConfig()  # act through another run's frozen decoder (vnl.train.frozen_decoder)
     # The learner: Brax's PPO (vnl.ppo.loop), or soft actor-critic from a replay buffer (vnl.ppo.sac,
     # its hyperparameters in `sac`; docs/how-to/sac.md).
@@ -193,6 +195,8 @@ class TrainConfig:
                 "would go on from the parent's count instead of starting at learning_rate; drop one of them"
             )
         self._validate_curriculum()
+        if self.levels.enabled:
+            self._validate_levels(env_config)
         if isinstance(env_config, SuiteConfig):
             self._validate_suite(env_config)
         if self.decoder.run is not None:
@@ -273,6 +277,23 @@ class TrainConfig:
         if isinstance(factory, type) and not getattr(factory, "reference_blocks", ()):
             raise VnlError(intention_without_reference(self.env))
 
+    def _validate_levels(self, env_config: Any) -> None:
+        """Terrain levels vary fields the env declares (`level_fields`), within a valid env config."""
+        unsupported = {
+            "--vision (its camera renders after the batch's reset)": self.vision.enabled,
+            "randomize": self.randomize.enabled,
+            "a suite of tasks": isinstance(env_config, SuiteConfig),
+            "decoder.run": self.decoder.run is not None,
+        }
+        refused = [name for name, on in unsupported.items() if on]
+        if refused:
+            raise VnlError(f"levels cannot train with {refused[0]} yet; turn one of them off")
+        check_fields(self.env, getattr(registry.entry(self.env).factory, "level_fields", ()), self.levels.easiest)
+        try:
+            registry.env_config(self.env, config_lib.merge(self.env_config, dict(self.levels.easiest)))
+        except VnlError as e:
+            raise VnlError(f"levels.easiest: {e}") from None
+
     def _validate_curriculum(self) -> None:
         """Every stage's env config is valid, and the stages' steps add up to ppo.num_timesteps."""
         if len(self.curriculum) > MAX_STAGES:
@@ -328,6 +349,8 @@ class TrainConfig:
         values = {k: v for k, v in config_lib.to_dict(self).items() if k != "log"}
         if self.decoder == DecoderConfig():
             values.pop("decoder")
+        if self.levels == LevelsConfig():  # runs from before terrain levels keep their hash
+            values.pop("levels")
         for key, default in (("actor_delay", 0), ("init_alpha", 1.0), ("target_entropy", None)):
             if getattr(self.sac, key) == default:  # SAC runs from before the key keep their hash
                 values["sac"].pop(key)

@@ -1,0 +1,176 @@
+"""Terrain levels (`vnl.envs.levels`): an automatic curriculum, one difficulty per training env."""
+
+import itertools
+import shutil
+
+import jax
+import jax.numpy as jp
+import numpy as np
+import pytest
+
+from vnl.arenas import gaps
+from vnl.envs import levels, registry
+from vnl.envs.wrappers import wrap_for_training
+from vnl.errors import VnlError
+from vnl.io import checkpoint
+from vnl.io import metrics as metrics_io
+from vnl.train import config as train_config
+from vnl.train import trainer
+
+pytestmark = [pytest.mark.xdist_group("levels"), pytest.mark.usefixtures("point_envs")]
+
+# test_point_levels: the target at 0 (level 0) to 1 (the env's own, level 3); `near` counts an
+# episode's steps within 0.1 of it. A mass at rest starts within 0.2 of 0: in episodes of 10 steps,
+# about half the envs at level 0 go up, and every env above it comes down.
+LEVELS = levels.LevelsConfig(count=4, easiest={"target": 0.0}, measure="near", promote=6.0, demote=2.0)
+
+
+def quiet(_):
+    pass
+
+
+def point_env():
+    return registry.make("test_point_levels")
+
+
+def test_the_table_goes_from_the_easiest_to_the_envs_own_values():
+    env = point_env()
+    table = levels.level_table(env, LEVELS)
+    np.testing.assert_allclose(table["target"], [0.0, 1 / 3, 2 / 3, 1.0], rtol=1e-6)
+    assert levels.level_table(env, levels.LevelsConfig()) is None  # off
+    same = levels.LevelsConfig(count=4, easiest={"target": 1.0}, measure="near", promote=6.0)
+    assert levels.level_table(env, same) is None  # nothing varies: trained as without levels
+    with pytest.raises(VnlError, match="cannot vary episode_length per episode .*level fields: target"):
+        levels.level_table(env, levels.LevelsConfig(count=4, easiest={"episode_length": 5}, measure="a", promote=1))
+    with pytest.raises(VnlError, match=r"shape \(2,\), but the env's target has \(\)"):
+        levels.level_table(env, levels.LevelsConfig(count=4, easiest={"target": [0, 1]}, measure="a", promote=1))
+
+
+def test_an_episode_moves_its_env_up_down_or_to_a_random_level_past_the_top():
+    env = point_env()
+    wrapped = wrap_for_training(env, 40, levels=(levels.level_table(env, LEVELS), LEVELS))
+    keys = jax.random.split(jax.random.PRNGKey(0), 6)
+    level = jp.array([0, 1, 2, 0, 3, 3])
+    measure = jp.array([6.0, 1.0, 4.0, 0.0, 1.5, 6.0])  # up, down, stays, stays at 0, down, past the top
+    moved = np.asarray(wrapped.next_level(level, measure, keys))
+    assert moved[:5].tolist() == [1, 0, 2, 0, 2]
+    anywhere = [int(wrapped.next_level(jp.array([3]), jp.array([9.0]), jax.random.split(k, 1))[0]) for k in keys]
+    assert set(anywhere) <= {0, 1, 2, 3} and len(set(anywhere)) > 1  # drawn, not a fixed level
+
+
+def test_every_episode_is_drawn_at_its_envs_level_and_levels_move_only_when_episodes_end():
+    env = point_env()
+    table = levels.level_table(env, LEVELS)
+    wrapped = wrap_for_training(env, 10, levels=(table, LEVELS))
+    state = jax.jit(wrapped.reset)(jax.random.split(jax.random.PRNGKey(1), 8))
+    assert np.all(np.asarray(state.info[levels.LEVEL]) == 0)
+    step = jax.jit(wrapped.step)
+    moves = 0
+    for t in range(60):
+        before = np.asarray(state.info[levels.LEVEL])
+        # The mass stays where it starts (|x| <= 0.2): near a target at 0, never near one at 1.
+        state = step(state, jp.zeros((8, 1)))
+        after = np.asarray(state.info[levels.LEVEL])
+        done = np.asarray(state.done) > 0
+        assert np.all(after[~done] == before[~done]), t
+        near = np.asarray(state.info["episode_metrics"]["measure/near"])
+        want = np.clip(before + (near >= 6) - (near < 2), 0, 3)
+        np.testing.assert_array_equal(after[done], want[done])  # the top is never passed here
+        moves += int(np.sum(after != before))
+        np.testing.assert_array_equal(np.asarray(state.info["target"]), table["target"][after])
+    assert moves > 0 and np.asarray(state.info[levels.LEVEL]).max() < 3
+
+
+def test_gaps_are_drawn_from_a_given_range_and_from_the_tasks_own_bit_for_bit():
+    env = registry.make("ant_run_gaps", impl="c")
+    key = jax.random.PRNGKey(3)
+    own = jax.jit(env.reset)(key)
+    given = jax.jit(env.reset_with)(key, {"corridor.gap_length": jp.asarray(env.config.corridor.gap_length)})
+    for a, b in zip(jax.tree.leaves(own), jax.tree.leaves(given), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    flat = jax.jit(env.reset_with)(key, {"corridor.gap_length": jp.zeros(2)})
+    corridor = gaps.layout_numpy(jax.tree.map(np.asarray, flat.info["layout"]))
+    assert all(abs(b[0] - a[1]) < 1e-3 for a, b in itertools.pairwise(corridor))  # no gap anywhere
+    assert float(gaps.gaps_behind(flat.info["layout"], jp.float32(1e3))) == 0
+
+
+def test_level_settings_are_checked_before_anything_is_built():
+    def build(values, **more):
+        return train_config.build("test_point_levels", "tiny", file_values={"levels": values, **more})
+
+    good = {"count": 4, "easiest": {"target": 0.0}, "measure": "near", "promote": 20.0}
+    build(good).validate()
+    cases = [
+        ({**good, "count": 1}, "levels.count must be 0 .off. or in 2..10,000"),
+        ({**good, "measure": None}, "levels.measure must name the task measure"),
+        ({**good, "demote": 30.0}, r"levels.demote must be a number below promote \(20.0\)"),
+        ({**good, "start": 4}, r"levels.start must be a level in 0..3"),
+        ({**good, "easiest": {}}, "levels.easiest must give the env_config values of level 0"),
+        ({**good, "easiest": {"episode_length": 3}}, "test_point_levels cannot vary episode_length per episode"),
+        ({"count": 0, "measure": "near"}, "count is 0 .levels off. but other levels keys are set"),
+    ]
+    for values, message in cases:
+        with pytest.raises(VnlError, match=message):
+            build(values).validate()
+    with pytest.raises(VnlError, match="levels cannot train with randomize yet"):
+        build(good, randomize={"friction": [0.9, 1.1]}).validate()
+    with pytest.raises(VnlError, match="test_point cannot vary target per episode .*level fields: none"):
+        train_config.build("test_point", "tiny", file_values={"levels": good}).validate()
+
+
+def test_a_measure_the_env_does_not_have_is_one_line_naming_its_measures():
+    env = point_env()
+    bad = levels.LevelsConfig(count=4, easiest={"target": 0.0}, measure="far", promote=1.0)
+    wrapped = wrap_for_training(env, 10, levels=(levels.level_table(env, bad), bad))
+    with pytest.raises(VnlError, match="has no measure 'far'; its measures: near"):
+        wrapped.reset(jax.random.split(jax.random.PRNGKey(0), 2))
+
+
+# Training: 16 envs x 4 minibatches x 8 steps = 512 env steps per training step (the tiny preset).
+RUN = {
+    "ppo": {"num_timesteps": 2048, "num_evals": 5, "learning_rate": 3e-3, "episode_length": 10},
+    "log": {"video": False, "progress": False},
+    "levels": {"count": 4, "easiest": {"target": 0.0}, "measure": "near", "promote": 6.0, "demote": 2.0},
+}
+
+
+@pytest.fixture(scope="module")
+def leveled(tmp_path_factory):
+    out = tmp_path_factory.mktemp("levels") / "run"
+    trainer.train(train_config.build("test_point_levels", "tiny", file_values=RUN), out, say=quiet)
+    return out
+
+
+@pytest.mark.slow
+def test_a_run_logs_its_levels_keeps_them_in_checkpoints_and_resumes_bit_for_bit(leveled, tmp_path):
+    records = metrics_io.read(leveled / "metrics.jsonl")
+    trained = [r for r in records if "training/level" in r]
+    assert len(trained) == 4 and all(0 <= r["training/level"] <= 1 for r in trained)
+    assert max(r["training/level"] for r in trained) > 0  # envs left level 0
+    _, arrays, _ = checkpoint.load_train_state(leveled)
+    saved = arrays[".env.info['level']"]
+    assert saved.shape == (16,) and saved.dtype == np.int32
+    assert np.isclose(saved.mean() / 3, trained[-1]["training/level"])
+    copy = tmp_path / "copy"
+    shutil.copytree(leveled, copy)
+    trainer.resume(copy, from_step=1024, say=quiet)
+    _, resumed, _ = checkpoint.load_train_state(copy)
+    for key in arrays:
+        np.testing.assert_array_equal(resumed[key], arrays[key], err_msg=key)
+
+
+@pytest.mark.slow
+def test_a_curriculum_stage_as_easy_as_the_easiest_level_trains_without_levels(tmp_path):
+    values = {
+        **RUN,
+        "ppo": {**RUN["ppo"], "num_timesteps": None},
+        "curriculum": [
+            {"name": "easy", "steps": 1024, "env_config": {"target": 0.0}},
+            {"name": "task", "steps": 1024},
+        ],
+    }
+    values["ppo"].pop("num_timesteps")
+    out = tmp_path / "run"
+    trainer.train(train_config.build("test_point_levels", "tiny", file_values=values), out, say=quiet)
+    records = metrics_io.read(out / "metrics.jsonl")
+    assert [("training/level" in r) for r in records[1:]] == [False, False, True, True]
