@@ -199,7 +199,8 @@ task): no cpu row changed; gpu and tiny rows gained the rules and cameras the cp
 2026-11-29: the `sac` section gained `actor_delay: 0` (off).
 2026-11-29: the `sac` section gained `init_alpha: 1.0` and `target_entropy: null` (Brax's temperature).
 2026-11-29: maze forage, two-touch and the rodent suite gained `healthy_min_height: null` (off).
-2026-12-01: every preset gained the `levels` section (terrain levels, vnl.envs.levels), off: count 0."""
+2026-12-01: every preset gained the `levels` section (terrain levels, vnl.envs.levels), off: count 0.
+2026-12-01: the bowls (and the suites that hold one) gained `spawn_distance: 0.0` (the centre)."""
 
 
 @pytest.mark.parametrize("name", sorted(RESOLVED))

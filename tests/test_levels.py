@@ -8,7 +8,7 @@ import jax.numpy as jp
 import numpy as np
 import pytest
 
-from vnl.arenas import gaps
+from vnl.arenas import bowl, gaps
 from vnl.envs import levels, registry
 from vnl.envs.wrappers import wrap_for_training
 from vnl.errors import VnlError
@@ -92,6 +92,27 @@ def test_gaps_are_drawn_from_a_given_range_and_from_the_tasks_own_bit_for_bit():
     corridor = gaps.layout_numpy(jax.tree.map(np.asarray, flat.info["layout"]))
     assert all(abs(b[0] - a[1]) < 1e-3 for a, b in itertools.pairwise(corridor))  # no gap anywhere
     assert float(gaps.gaps_behind(flat.info["layout"], jp.float32(1e3))) == 0
+
+
+def test_a_bowl_episode_starts_at_a_given_distance_from_the_centre_and_at_the_centre_bit_for_bit():
+    env = registry.make("ant_escape_bowl", impl="c")
+    key = jax.random.PRNGKey(4)
+    own = jax.jit(env.reset)(key)
+    centre = jax.jit(env.reset_with)(key, {"spawn_distance": jp.float32(0.0)})
+    for a, b in zip(jax.tree.leaves(own), jax.tree.leaves(centre), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+    def ground(xy):
+        return float(bowl.ground_height(env._surface, env.config.bowl.half_size, jp.asarray([xy], jp.float32))[0])
+
+    clearance = float(own.data.qpos[2]) - ground((0.0, 0.0))
+    for d in (2.0, 4.5):
+        state = jax.jit(env.reset_with)(jax.random.PRNGKey(int(d)), {"spawn_distance": jp.float32(d)})
+        root = np.asarray(state.data.qpos[:3])
+        assert np.isclose(np.hypot(*root[:2]), d, atol=1e-5)
+        assert root[2] - ground(root[:2]) >= clearance - 1e-5  # as high above the slope as above the centre
+    with pytest.raises(VnlError, match=r"spawn_distance must be in \[0, 6.0\] m"):
+        registry.make("ant_escape_bowl", impl="c", spawn_distance=7.0)
 
 
 def test_level_settings_are_checked_before_anything_is_built():

@@ -60,6 +60,10 @@ class EscapeBowlConfig(WalkerTaskConfig):
     # rough-terrain sensor of legged-locomotion RL, for a walker without a camera among bumps as tall
     # as itself. Empty: none.
     terrain_scan: tuple[tuple[float, float], ...] = ()
+    # The walker's spawn point (m) from the bowl's centre, in a direction drawn every episode (0: the
+    # centre, dm_control's). Terrain levels move it from near the rim in to the centre, a reverse
+    # curriculum (docs/how-to/curricula.md#terrain-levels).
+    spawn_distance: float = 0.0
 
     def validate(self) -> None:
         super().validate()
@@ -75,6 +79,10 @@ class EscapeBowlConfig(WalkerTaskConfig):
             raise VnlError(f"deviation_angle must be in [0, 180) degrees, got {self.deviation_angle}")
         if not np.all(np.isfinite(np.asarray(self.terrain_scan, dtype=float))):
             raise VnlError(f"terrain_scan must be (forward, left) points in metres, got {list(self.terrain_scan)}")
+        if not (np.isfinite(self.spawn_distance) and 0 <= self.spawn_distance <= b.half_size):
+            raise VnlError(
+                f"spawn_distance must be in [0, {b.half_size}] m (the bowl's half-size), got {self.spawn_distance}"
+            )
         if len(self.terrain_scan) > MAX_SCAN:
             raise VnlError(
                 f"terrain_scan has {len(self.terrain_scan):,} points, at most {MAX_SCAN:,} (each is an observation "
@@ -121,11 +129,19 @@ class EscapeBowl(WalkerTask):
             [self._root] + ([body_id(model, "pelvis")] if walker.name == "rodent" else []), dtype=int
         )
 
+    # Terrain levels (vnl.envs.levels) start each env's episodes at its own distance from the centre.
+    level_fields = ("spawn_distance",)
+
     def reset(self, rng: jax.Array) -> State:
+        return self.reset_with(rng, {})
+
+    def reset_with(self, rng: jax.Array, values: dict[str, jax.Array]) -> State:
+        """`reset`, with the walker spawned `values["spawn_distance"]` (a scalar) from the centre if given."""
         cfg: EscapeBowlConfig = self._config
         rng, k_pose, k_vel, k_yaw = jax.random.split(rng, 4)
         yaw = jax.random.uniform(k_yaw, (), minval=-jp.pi, maxval=jp.pi)
-        qpos = self.initial_qpos(k_pose, jp.array([0.0, 0.0, self._spawn_z]), yaw)
+        position = self._spawn_point(jax.random.fold_in(k_yaw, 1), values.get("spawn_distance", cfg.spawn_distance))
+        qpos = self.initial_qpos(k_pose, position, yaw)
         noise = cfg.reset_noise_scale
         qvel = jax.random.uniform(k_vel, (self._mj_model.nv,), minval=-noise, maxval=noise)
         data = self.forward(self.make_data(qpos=qpos, qvel=qvel))
@@ -143,6 +159,22 @@ class EscapeBowl(WalkerTask):
 
     # A blown-up step's terms are v * ok, v >= 0: +0.0 whatever v; docs/experiments/compact-checkpoints.md
     previous_state_reads = ()
+
+    def _spawn_point(self, key: jax.Array, distance: jax.Array | float) -> jax.Array:
+        """The root's spawn position (3,): `distance` m from the centre in a direction drawn from
+        `key`, raised by how much higher the ground within 0.15 m is there than at the centre (so
+        that the level walker clears a slope); the centre itself, exactly, at distance 0."""
+        distance = jp.asarray(distance, jp.float32)
+        angle = jax.random.uniform(key, (), minval=-jp.pi, maxval=jp.pi)
+        xy = distance * jp.stack([jp.cos(angle), jp.sin(angle)])
+        around = xy + 0.15 * jp.asarray([[0, 0], [1, 0], [-1, 0], [0, 1], [0, -1]], jp.float32)
+        half = self._config.bowl.half_size
+        centre = bowl_arena.ground_height(self._surface, half, jp.zeros((1, 2), jp.float32))[0]
+        lift = jp.max(bowl_arena.ground_height(self._surface, half, around)) - centre
+        away = distance > 0
+        return jp.stack(
+            [jp.where(away, xy[0], 0.0), jp.where(away, xy[1], 0.0), self._spawn_z + jp.where(away, lift, 0.0)]
+        )
 
     def step(self, state: State, action: jax.Array) -> State:
         action = self.sanitize_action(action)
