@@ -58,27 +58,59 @@ def test_an_episode_moves_its_env_up_down_or_to_a_random_level_past_the_top():
     assert set(anywhere) <= {0, 1, 2, 3} and len(set(anywhere)) > 1  # drawn, not a fixed level
 
 
-def test_every_episode_is_drawn_at_its_envs_level_and_levels_move_only_when_episodes_end():
-    env = point_env()
-    table = levels.level_table(env, LEVELS)
-    wrapped = wrap_for_training(env, 10, levels=(table, LEVELS))
-    state = jax.jit(wrapped.reset)(jax.random.split(jax.random.PRNGKey(1), 8))
-    assert np.all(np.asarray(state.info[levels.LEVEL]) == 0)
+def run_levels(env, config, steps, seed=1):
+    """Steps `config`'s levels on 8 envs of `env` with random actions; yields (state before, state after)."""
+    table = levels.level_table(env, config)
+    wrapped = wrap_for_training(env, 10, levels=(table, config))
+    state = jax.jit(wrapped.reset)(jax.random.split(jax.random.PRNGKey(seed), 8))
     step = jax.jit(wrapped.step)
-    moves = 0
-    for t in range(60):
-        before = np.asarray(state.info[levels.LEVEL])
-        # The mass stays where it starts (|x| <= 0.2): near a target at 0, never near one at 1.
-        state = step(state, jp.zeros((8, 1)))
-        after = np.asarray(state.info[levels.LEVEL])
-        done = np.asarray(state.done) > 0
-        assert np.all(after[~done] == before[~done]), t
-        near = np.asarray(state.info["episode_metrics"]["measure/near"])
-        want = np.clip(before + (near >= 6) - (near < 2), 0, 3)
-        np.testing.assert_array_equal(after[done], want[done])  # the top is never passed here
-        moves += int(np.sum(after != before))
-        np.testing.assert_array_equal(np.asarray(state.info["target"]), table["target"][after])
-    assert moves > 0 and np.asarray(state.info[levels.LEVEL]).max() < 3
+    key = jax.random.PRNGKey(seed + 1)
+    for _ in range(steps):
+        key, k = jax.random.split(key)
+        after = step(state, jax.random.uniform(k, (8, 1), minval=-1, maxval=1))
+        yield state, after
+        state = after
+
+
+def test_every_episode_is_drawn_at_its_envs_level_and_levels_move_only_when_episodes_end():
+    # Episodes end when the mass strays 5 cm from its start, or after 10 steps: at different steps.
+    env = registry.make("test_point_levels", stray=0.05)
+    table = levels.level_table(env, LEVELS)
+    redraw = jax.jit(jax.vmap(env.reset_with))
+    moves, partial = 0, 0
+    for t, (before, after) in enumerate(run_levels(env, LEVELS, 60)):
+        if t == 0:
+            assert np.all(np.asarray(before.info[levels.LEVEL]) == 0)
+        old, new = np.asarray(before.info[levels.LEVEL]), np.asarray(after.info[levels.LEVEL])
+        done = np.asarray(after.done) > 0
+        partial += int(0 < done.sum() < 8)
+        assert np.all(new[~done] == old[~done]), t
+        near = np.asarray(after.info["episode_metrics"]["measure/near"])
+        want = np.clip(old + (near >= 6) - (near < 2), 0, 3)
+        np.testing.assert_array_equal(new[done], want[done])  # the top is never passed here
+        moves += int(np.sum(new != old))
+        np.testing.assert_array_equal(np.asarray(after.info["target"]), table["target"][new])
+        # A finished episode's env holds a new episode drawn at its new level; the others go on.
+        keys = jax.vmap(jax.random.fold_in, in_axes=(0, None))(before.info["rng"], 1)
+        fresh = redraw(keys, {"target": jp.asarray(table["target"][new])})
+        for got, drawn in ((after.obs, fresh.obs), (after.data.qpos, fresh.data.qpos)):
+            np.testing.assert_array_equal(np.asarray(got)[done], np.asarray(drawn)[done])
+        going = np.asarray(after.obs)[~done]  # moving: not a new episode's mass at rest
+        assert np.all(np.abs(going[:, 1]) > 0), t
+    assert moves > 0 and partial > 0
+
+
+def test_an_env_promoted_past_the_last_level_goes_to_a_level_drawn_at_random():
+    # The task's own target (0) is the easy one here: episodes at the top level promote.
+    env = registry.make("test_point_levels", target=0.0)
+    easy_last = levels.LevelsConfig(count=3, easiest={"target": 1.0}, measure="near", promote=6.0, start=2)
+    landed = set()
+    for before, after in run_levels(env, easy_last, 40):
+        old, new = np.asarray(before.info[levels.LEVEL]), np.asarray(after.info[levels.LEVEL])
+        near = np.asarray(after.info["episode_metrics"]["measure/near"])
+        past = (np.asarray(after.done) > 0) & (old == 2) & (near >= 6)
+        landed |= set(new[past].tolist())
+    assert landed <= {0, 1, 2} and len(landed) > 1
 
 
 def test_gaps_are_drawn_from_a_given_range_and_from_the_tasks_own_bit_for_bit():
@@ -101,6 +133,11 @@ def test_a_bowl_episode_starts_at_a_given_distance_from_the_centre_and_at_the_ce
     centre = jax.jit(env.reset_with)(key, {"spawn_distance": jp.float32(0.0)})
     for a, b in zip(jax.tree.leaves(own), jax.tree.leaves(centre), strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    # The centre's pose as the reset before spawn_distance drew it: the root at (0, 0, spawn height).
+    _, k_pose, _, k_yaw = jax.random.split(key, 4)
+    yaw = jax.random.uniform(k_yaw, (), minval=-jp.pi, maxval=jp.pi)
+    before = env.initial_qpos(k_pose, jp.array([0.0, 0.0, env._spawn_z]), yaw)
+    np.testing.assert_array_equal(np.asarray(own.data.qpos), np.asarray(before))
 
     def ground(xy):
         return float(bowl.ground_height(env._surface, env.config.bowl.half_size, jp.asarray([xy], jp.float32))[0])
@@ -111,7 +148,7 @@ def test_a_bowl_episode_starts_at_a_given_distance_from_the_centre_and_at_the_ce
         root = np.asarray(state.data.qpos[:3])
         assert np.isclose(np.hypot(*root[:2]), d, atol=1e-5)
         assert root[2] - ground(root[:2]) >= clearance - 1e-5  # as high above the slope as above the centre
-    with pytest.raises(VnlError, match=r"spawn_distance must be in \[0, 6.0\] m"):
+    with pytest.raises(VnlError, match=r"spawn_distance must be in \[0, 6.0\) m"):
         registry.make("ant_escape_bowl", impl="c", spawn_distance=7.0)
 
 
@@ -133,18 +170,32 @@ def test_level_settings_are_checked_before_anything_is_built():
     for values, message in cases:
         with pytest.raises(VnlError, match=message):
             build(values).validate()
+    with pytest.raises(VnlError, match="levels change nothing: levels.easiest equals the env config"):
+        build({**good, "easiest": {"target": 1.0}}).validate()
+    with pytest.raises(VnlError, match="levels.easiest must give"):
+        build({**good, "easiest": {"corridor": {}}}).validate()
+    stages = [{"steps": 512, "env_config": {"target": 0.0}}, {"steps": 512, "env_config": {"episode_length": 5}}]
+    with pytest.raises(VnlError, match="levels change nothing"):  # stage 1 is level 0, stage 2 the easiest too
+        build({**good}, curriculum=stages, env_config={"target": 0.0}).validate()
     with pytest.raises(VnlError, match="levels cannot train with randomize yet"):
         build(good, randomize={"friction": [0.9, 1.1]}).validate()
     with pytest.raises(VnlError, match="test_point cannot vary target per episode .*level fields: none"):
         train_config.build("test_point", "tiny", file_values={"levels": good}).validate()
 
 
-def test_a_measure_the_env_does_not_have_is_one_line_naming_its_measures():
+def test_a_measure_the_env_does_not_have_is_one_line_naming_its_measures_when_the_loop_is_built():
+    from vnl.train.curriculum import make_loop
+    from vnl.train.worlds import Worlds
+
     env = point_env()
     bad = levels.LevelsConfig(count=4, easiest={"target": 0.0}, measure="far", promote=1.0)
-    wrapped = wrap_for_training(env, 10, levels=(levels.level_table(env, bad), bad))
     with pytest.raises(VnlError, match="has no measure 'far'; its measures: near"):
-        wrapped.reset(jax.random.split(jax.random.PRNGKey(0), 2))
+        wrap_for_training(env, 10, levels=(levels.level_table(env, bad), bad))
+    # With a curriculum whose first stage is level 0 itself, before stage 1 trains.
+    values = {**RUN, "levels": {**RUN["levels"], "measure": "far"}, "curriculum": CURRICULUM}
+    config = train_config.build("test_point_levels", "tiny", file_values=values)
+    with pytest.raises(VnlError, match="has no measure 'far'"):
+        make_loop(Worlds(config), config, say=quiet)
 
 
 # Training: 16 envs x 4 minibatches x 8 steps = 512 env steps per training step (the tiny preset).
@@ -153,6 +204,10 @@ RUN = {
     "log": {"video": False, "progress": False},
     "levels": {"count": 4, "easiest": {"target": 0.0}, "measure": "near", "promote": 6.0, "demote": 2.0},
 }
+
+
+# A first stage as easy as level 0 (trained without levels), then the task with levels.
+CURRICULUM = [{"name": "easy", "steps": 1024, "env_config": {"target": 0.0}}, {"name": "task", "steps": 1024}]
 
 
 @pytest.fixture(scope="module")
@@ -182,16 +237,17 @@ def test_a_run_logs_its_levels_keeps_them_in_checkpoints_and_resumes_bit_for_bit
 
 @pytest.mark.slow
 def test_a_curriculum_stage_as_easy_as_the_easiest_level_trains_without_levels(tmp_path):
-    values = {
-        **RUN,
-        "ppo": {**RUN["ppo"], "num_timesteps": None},
-        "curriculum": [
-            {"name": "easy", "steps": 1024, "env_config": {"target": 0.0}},
-            {"name": "task", "steps": 1024},
-        ],
-    }
+    values = {**RUN, "ppo": {**RUN["ppo"]}, "curriculum": CURRICULUM}
     values["ppo"].pop("num_timesteps")
     out = tmp_path / "run"
     trainer.train(train_config.build("test_point_levels", "tiny", file_values=values), out, say=quiet)
     records = metrics_io.read(out / "metrics.jsonl")
     assert [("training/level" in r) for r in records[1:]] == [False, False, True, True]
+
+
+@pytest.mark.slow
+def test_a_recurrent_network_trains_with_levels(tmp_path):
+    values = {**RUN, "ppo": {**RUN["ppo"], "num_timesteps": 1024, "num_evals": 2}, "network": {"core": "gru"}}
+    out = tmp_path / "run"
+    trainer.train(train_config.build("test_point_levels", "tiny", file_values=values), out, say=quiet)
+    assert "training/level" in metrics_io.read(out / "metrics.jsonl")[-1]

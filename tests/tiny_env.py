@@ -30,6 +30,7 @@ class PointConfig:
     blow_up_above: float = 2.0  # an action above this overflows the physics (never, by default)
     impl: str = "jax"  # physics (vnl.physics): jax or c
     observe_target: bool = False  # append the target's position to the observation (a new sensor)
+    stray: float | None = None  # test_point_levels: an episode ends when the mass is this far from its start
 
 
 class PointMass(Env):
@@ -79,7 +80,8 @@ class LevelPoint(PointMass):
         data = self.forward(self.make_data(qpos=x0))
         zero = jp.zeros(())
         metrics = {"reward/distance": zero, "physics_nan": zero, "measure/near": zero}
-        return State(data, self._obs_at(data, target), zero, zero, metrics, {"rng": rng, "target": target})
+        info = {"rng": rng, "target": target, "start": x0[0]}
+        return State(data, self._obs_at(data, target), zero, zero, metrics, info)
 
     def step(self, state: State, action: jax.Array) -> State:
         target = state.info["target"]
@@ -87,7 +89,10 @@ class LevelPoint(PointMass):
         offset = jp.abs(data.qpos[0] - target)
         near = (offset < 0.1).astype(jp.float32)
         metrics = {**state.metrics, "reward/distance": -offset, "physics_nan": blew_up, "measure/near": near}
-        return state.replace(data=data, obs=self._obs_at(data, target), reward=-offset, done=blew_up, metrics=metrics)
+        done = blew_up
+        if self.config.stray is not None:
+            done = jp.maximum(done, (jp.abs(data.qpos[0] - state.info["start"]) > self.config.stray).astype(jp.float32))
+        return state.replace(data=data, obs=self._obs_at(data, target), reward=-offset, done=done, metrics=metrics)
 
     def _obs_at(self, data, target: jax.Array) -> jax.Array:
         return jp.stack([data.qpos[0] - target, data.qvel[0]]).astype(jp.float32)

@@ -73,7 +73,7 @@ class LevelsConfig:
             return
         if not 2 <= self.count <= MAX_LEVELS:
             raise VnlError(f"count must be 0 (off) or in 2..{MAX_LEVELS:,}, got {self.count:,}")
-        if not self.easiest:
+        if not field_paths(dict(self.easiest)):
             raise VnlError("easiest must give the env_config values of level 0, e.g. {corridor: {gap_length: [0, 0]}}")
         if not self.measure:
             raise VnlError("measure must name the task measure that moves an env's level, e.g. distance")
@@ -108,7 +108,8 @@ def check_fields(env_name: str, allowed: tuple[str, ...], easiest: dict[str, Any
             )
 
 
-def _config_value(config: Any, path: str) -> Any:
+def config_value(config: Any, path: str) -> Any:
+    """The value at a dotted `path` (`corridor.gap_length`) of a frozen env config."""
     for name in path.split("."):
         config = getattr(config, name)
     return config
@@ -125,12 +126,14 @@ def level_table(env: Any, levels: LevelsConfig) -> dict[str, np.ndarray] | None:
     table: dict[str, np.ndarray] = {}
     check_fields(type(task).__name__, task.level_fields, levels.easiest)
     for path, easy in field_paths(dict(levels.easiest)).items():
-        hard = np.asarray(_config_value(task.config, path), np.float32)
+        hard = np.asarray(config_value(task.config, path), np.float32)
         easy = np.asarray(easy, np.float32)
         if easy.shape != hard.shape:
             raise VnlError(f"levels.easiest.{path} has shape {easy.shape}, but the env's {path} has {hard.shape}")
         fraction = np.linspace(0.0, 1.0, levels.count, dtype=np.float32).reshape((-1,) + (1,) * hard.ndim)
-        table[path] = (easy + (hard - easy) * fraction).astype(np.float32)
+        values = (easy + (hard - easy) * fraction).astype(np.float32)
+        values[-1] = hard  # the last level is the env's own config, exactly
+        table[path] = values
     if all(np.array_equal(v[0], v[-1]) for v in table.values()):
         return None
     return table
@@ -141,17 +144,27 @@ class LevelsAutoResetWrapper(brax_training.Wrapper):
     when an episode ends, its env's level moves by the episode's measure and a new episode is
     drawn at that level (`task.reset_with`); `info[LEVEL]` holds each env's level.
 
-    It takes the place of `vnl.envs.wrappers.AutoResetWrapper` and, like its redraw, pays for a
-    batch of new episodes only at steps where an episode ended (`lax.cond`)."""
+    It takes the place of `vnl.envs.wrappers.AutoResetWrapper` and, like its redraw, draws a batch
+    of new episodes at the steps where an episode ended (`lax.cond`): with many envs and short
+    episodes, nearly every step."""
 
     def __init__(self, env: Any, table: dict[str, np.ndarray], levels: LevelsConfig) -> None:
         super().__init__(env)
         self._task = env.unwrapped
+        vmapped = getattr(env, "env", None)
+        if not (isinstance(vmapped, brax_training.VmapWrapper) and vmapped.env is self._task):
+            raise VnlError("levels draw episodes from the task itself: wrap EpisodeWrapper(VmapWrapper(task))")
         self._table = {k: jp.asarray(v) for k, v in table.items()}
         self._levels = levels
         self._measure = f"measure/{levels.measure}"
-        # The task's own `info` entries (those its reset makes), not the wrappers' bookkeeping.
-        self._task_keys = tuple(jax.eval_shape(self._task.reset, jax.ShapeDtypeStruct((2,), jp.uint32)).info)
+        first = jax.eval_shape(self._task.reset, jax.ShapeDtypeStruct((2,), jp.uint32))
+        if self._measure not in first.metrics:
+            measures = sorted(k.removeprefix("measure/") for k in first.metrics if k.startswith("measure/"))
+            raise VnlError(
+                f"levels.measure: {type(self._task).__name__} has no measure {levels.measure!r}; its measures: "
+                f"{', '.join(measures) or 'none'}"
+            )
+        self._task_keys = tuple(first.info)  # the task's own `info` entries, not the wrappers' bookkeeping
 
     def _draw(self, keys: jax.Array, level: jax.Array) -> State:
         """New episodes, one per key, each at its level: a batched task state."""
@@ -160,15 +173,10 @@ class LevelsAutoResetWrapper(brax_training.Wrapper):
 
     def reset(self, rng: jax.Array) -> State:
         state = self.env.reset(rng)  # the episode bookkeeping of the wrappers below
-        if self._measure not in state.metrics:
-            measures = sorted(k.removeprefix("measure/") for k in state.metrics if k.startswith("measure/"))
-            raise VnlError(
-                f"levels.measure: {type(self._task).__name__} has no measure {self._levels.measure!r}; its measures: "
-                f"{', '.join(measures) or 'none'}"
-            )
         level = jp.full(rng.shape[:-1], self._levels.start, jp.int32)
         drawn = self._draw(rng, level)
-        return state.replace(data=drawn.data, obs=drawn.obs, info={**state.info, **drawn.info, LEVEL: level})
+        info = {**state.info, **drawn.info, LEVEL: level}
+        return state.replace(data=drawn.data, obs=drawn.obs, metrics=drawn.metrics, info=info)
 
     def next_level(self, level: jax.Array, measure: jax.Array, keys: jax.Array) -> jax.Array:
         """Each env's level after an episode that scored `measure` (shapes (envs,)); `keys` (envs,

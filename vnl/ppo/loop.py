@@ -389,13 +389,17 @@ class PPOLoop:
         }
         return state.replace(training=training, env=env, key=key), metrics
 
+    def env_states(self, env: Any) -> Any:
+        """The training envs' states in a `LoopState.env` (a recurrent loop keeps its cores beside them)."""
+        return env
+
     def _level_metrics(self, env: Any) -> dict[str, float]:
         """With terrain levels: `training/level`, the training envs' mean level as a fraction of the
         way to the task's own terrain (0: all at the easiest, 1: all at the task's), and
         `training/level_top`, the share of envs at the task's own level. This process's envs."""
         if self.levels is None:
             return {}
-        level = np.asarray(env.info[levels_lib.LEVEL])
+        level = np.asarray(self.env_states(env).info[levels_lib.LEVEL])
         top = self.config.levels.count - 1
         return {"training/level": float(np.mean(level) / top), "training/level_top": float(np.mean(level == top))}
 

@@ -237,6 +237,10 @@ class RecurrentPPOLoop(PPOLoop):
         envs = super().reset_envs(key)
         return envs, zero_carry(self.network, (self.n_devices, self.local_envs // self.n_devices))
 
+    def env_states(self, env: Any) -> Any:
+        """The env states of (env states, core states)."""
+        return env[0]
+
     def _evaluate_one(
         self, evaluator: Any, key: jax.Array, params: Any, training_metrics: dict[str, float]
     ) -> tuple[dict[str, Any], jax.Array]:

@@ -109,8 +109,11 @@ class Env(abc.ABC):
     def reset_with(self, rng: jax.Array, values: dict[str, jax.Array]) -> State:
         """New episode from `rng` with some of `level_fields` set to `values` (arrays of the
         fields' shapes, may be traced); a field not in `values` keeps the config's value, so
-        `reset_with(rng, {})` is `reset(rng)`."""
-        raise NotImplementedError(f"{type(self).__name__} declares no level_fields")
+        `reset_with(rng, {})` is `reset(rng)`. An env with `level_fields` carries its key in
+        `info["rng"]` (training's auto-reset draws the next episode from it)."""
+        if values:
+            raise NotImplementedError(f"{type(self).__name__} declares no level_fields")
+        return self.reset(rng)
 
     @abc.abstractmethod
     def step(self, state: State, action: jax.Array) -> State:

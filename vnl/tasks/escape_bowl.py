@@ -79,9 +79,9 @@ class EscapeBowlConfig(WalkerTaskConfig):
             raise VnlError(f"deviation_angle must be in [0, 180) degrees, got {self.deviation_angle}")
         if not np.all(np.isfinite(np.asarray(self.terrain_scan, dtype=float))):
             raise VnlError(f"terrain_scan must be (forward, left) points in metres, got {list(self.terrain_scan)}")
-        if not (np.isfinite(self.spawn_distance) and 0 <= self.spawn_distance <= b.half_size):
+        if not (np.isfinite(self.spawn_distance) and 0 <= self.spawn_distance < b.half_size):
             raise VnlError(
-                f"spawn_distance must be in [0, {b.half_size}] m (the bowl's half-size), got {self.spawn_distance}"
+                f"spawn_distance must be in [0, {b.half_size}) m (inside the bowl), got {self.spawn_distance}"
             )
         if len(self.terrain_scan) > MAX_SCAN:
             raise VnlError(

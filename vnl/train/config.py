@@ -11,11 +11,12 @@ import hashlib
 from pathlib import Path
 from typing import Any, Literal
 
+import numpy as np
 import yaml
 
 from vnl import typed_config as config_lib
 from vnl.envs import registry
-from vnl.envs.levels import LevelsConfig, check_fields
+from vnl.envs.levels import LevelsConfig, check_fields, config_value, field_paths
 from vnl.envs.randomize import RandomizeConfig
 from vnl.envs.suite import SuiteConfig
 from vnl.errors import VnlError
@@ -289,10 +290,24 @@ class TrainConfig:
         if refused:
             raise VnlError(f"levels cannot train with {refused[0]} yet; turn one of them off")
         check_fields(self.env, getattr(registry.entry(self.env).factory, "level_fields", ()), self.levels.easiest)
-        try:
-            registry.env_config(self.env, config_lib.merge(self.env_config, dict(self.levels.easiest)))
-        except VnlError as e:
-            raise VnlError(f"levels.easiest: {e}") from None
+        easiest = dict(self.levels.easiest)
+        stages = [config_lib.merge(self.env_config, s.env_config) for s in self.curriculum] or [self.env_config]
+        varies = False
+        for i, env_config in enumerate(stages):
+            try:  # each stage's level 0: its own config with `easiest`
+                easy = registry.env_config(self.env, config_lib.merge(env_config, easiest))
+            except VnlError as e:
+                raise VnlError(f"levels.easiest{f' (curriculum[{i}])' if self.curriculum else ''}: {e}") from None
+            hard = registry.env_config(self.env, env_config)
+            varies |= any(
+                not np.array_equal(np.asarray(config_value(easy, p)), np.asarray(config_value(hard, p)))
+                for p in field_paths(easiest)
+            )
+        if not varies:
+            raise VnlError(
+                "levels change nothing: levels.easiest equals the env config of the run (and of every curriculum "
+                "stage); give level 0 easier values"
+            )
 
     def _validate_curriculum(self) -> None:
         """Every stage's env config is valid, and the stages' steps add up to ppo.num_timesteps."""
