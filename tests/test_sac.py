@@ -190,7 +190,7 @@ def test_actor_delay_holds_the_policy_and_temperature_while_the_critics_learn():
     with pytest.raises(VnlError, match="actor_delay"):
         config(actor_delay=-1)
     # The defaults (0, and init_alpha's and target_entropy's) leave a SAC run's hash as it was before the keys existed.
-    values = {k: v for k, v in config_lib.to_dict(config()).items() if k not in ("log", "decoder")}
+    values = {k: v for k, v in config_lib.to_dict(config()).items() if k not in ("log", "decoder", "levels")}
     for key in ("actor_delay", "init_alpha", "target_entropy"):
         del values["sac"][key]
     assert config().content_hash() == hashlib.sha256(yaml.safe_dump(values, sort_keys=True).encode()).hexdigest()[:16]
@@ -224,11 +224,11 @@ def test_the_temperature_starts_at_init_alpha_and_steers_towards_target_entropy(
 
 def test_a_ppo_config_keeps_its_hash_from_before_sac():
     """Runs written before `algorithm` existed resume and warm-start: the hash of a PPO config is
-    the one vnl computed before, over its values without `log` and the unused `decoder`."""
+    the one vnl computed before, over its values without `log` and the unused `decoder` and `levels`."""
     ppo = train_config.build("test_point", "tiny")
     values = config_lib.to_dict(ppo)
     assert values["algorithm"] == "ppo" and "sac" in values
-    before = {k: v for k, v in values.items() if k not in ("log", "decoder", "algorithm", "sac")}
+    before = {k: v for k, v in values.items() if k not in ("log", "decoder", "levels", "algorithm", "sac")}
     assert ppo.content_hash() == hashlib.sha256(yaml.safe_dump(before, sort_keys=True).encode()).hexdigest()[:16]
     assert config().content_hash() != ppo.content_hash()
 
