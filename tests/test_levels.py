@@ -152,6 +152,34 @@ def test_a_bowl_episode_starts_at_a_given_distance_from_the_centre_and_at_the_ce
         registry.make("ant_escape_bowl", impl="c", spawn_distance=7.0)
 
 
+def test_a_two_touch_episode_draws_every_orb_in_its_own_area_and_height():
+    env = registry.make("rodent_two_touch", impl="c")
+    key = jax.random.PRNGKey(5)
+    own, given = jax.jit(env.reset)(key), jax.jit(env.reset_with)(key, {})
+    for a, b in zip(jax.tree.leaves(own), jax.tree.leaves(given), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    near = {"target_area": jp.asarray([0.2, 0.1]), "orb_height": jp.float32(0.03)}
+    state = jax.jit(env.reset_with)(key, near)
+    redrawn = jax.jit(env.prepare)(state.replace(info={**state.info, "redraw": jp.asarray(True), "t": jp.int32(7)}))
+    for s in (state, redrawn):
+        orb = np.asarray(env.orb(s.data))
+        assert abs(orb[0]) <= 0.2 and abs(orb[1]) <= 0.1 and np.isclose(orb[2], 0.03)
+    assert not np.allclose(env.orb(state.data), env.orb(redrawn.data))  # a new draw, in the same area
+    # Under levels, each new episode's area is its env's level's (episodes of 3 steps; no touch, no
+    # demotion: levels stay where they are put).
+    config = levels.LevelsConfig(count=3, easiest={"target_area": [0.2, 0.2]}, measure="first_touches", promote=1.0)
+    table = levels.level_table(env, config)
+    wrapped = wrap_for_training(env, 3, levels=(table, config))
+    batch = jax.jit(wrapped.reset)(jax.random.split(key, 2))
+    np.testing.assert_array_equal(np.asarray(batch.info["orb_area"]), table["target_area"][[0, 0]])
+    batch = batch.replace(info={**batch.info, levels.LEVEL: jp.asarray([1, 2], jp.int32)})
+    step = jax.jit(wrapped.step)
+    for _ in range(3):
+        batch = step(batch, jp.zeros((2, env.action_size)))
+    assert np.all(np.asarray(batch.done) > 0)
+    np.testing.assert_array_equal(np.asarray(batch.info["orb_area"]), table["target_area"][[1, 2]])
+
+
 def test_level_settings_are_checked_before_anything_is_built():
     def build(values, **more):
         return train_config.build("test_point_levels", "tiny", file_values={"levels": values, **more})

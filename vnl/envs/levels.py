@@ -157,7 +157,8 @@ class LevelsAutoResetWrapper(brax_training.Wrapper):
         self._table = {k: jp.asarray(v) for k, v in table.items()}
         self._levels = levels
         self._measure = f"measure/{levels.measure}"
-        first = jax.eval_shape(self._task.reset, jax.ShapeDtypeStruct((2,), jp.uint32))
+        level0 = {k: v[0] for k, v in self._table.items()}
+        first = jax.eval_shape(lambda key: self._task.reset_with(key, level0), jax.ShapeDtypeStruct((2,), jp.uint32))
         if self._measure not in first.metrics:
             measures = sorted(k.removeprefix("measure/") for k in first.metrics if k.startswith("measure/"))
             raise VnlError(

@@ -183,14 +183,25 @@ class TwoTouch(WalkerTask):
             "debounce": math.ceil(config.touch_debounce / dt - _STEP_EPS),
         }
 
+    # Terrain levels (vnl.envs.levels): each env's orb area and height, kept in `info` (`orb_area`,
+    # `orb_height`) for the episode's redraws.
+    level_fields = ("target_area", "orb_height")
+    _PLACEMENT = {"target_area": "orb_area", "orb_height": "orb_height"}
+
     # --- the contract ----------------------------------------------------------------------------
     def reset(self, rng: jax.Array) -> State:
+        return self.reset_with(rng, {})
+
+    def reset_with(self, rng: jax.Array, values: dict[str, jax.Array]) -> State:
+        """`reset`, with the orb drawn in ±`values["target_area"]` (2,) at `values["orb_height"]` if
+        given, for this episode's every trial."""
         rng, k_pose, k_vel, k_yaw, k_orb = jax.random.split(rng, 5)
         yaw = jax.random.uniform(k_yaw, (), minval=-jp.pi, maxval=jp.pi)
         qpos = self.initial_qpos(k_pose, jp.array([0.0, 0.0, self._spawn_z]), yaw)
         noise = self._config.reset_noise_scale
         qvel = jax.random.uniform(k_vel, (self._mj_model.nv,), minval=-noise, maxval=noise)
-        mocap = jp.asarray(self._mocap0).at[self._orb].set(self.draw_orb(k_orb))
+        placement = {self._PLACEMENT[k]: jp.asarray(v, jp.float32) for k, v in values.items()}
+        mocap = jp.asarray(self._mocap0).at[self._orb].set(self.draw_orb(k_orb, placement))
         data = self.forward(self.make_data(qpos=qpos, qvel=qvel, mocap_pos=mocap))
         zero, izero = jp.zeros((), jp.float32), jp.zeros((), jp.int32)
         info = {
@@ -201,6 +212,7 @@ class TwoTouch(WalkerTask):
             "second": izero,  # the step of its second touch, or of the window's close
             "timeout": jp.zeros((), bool),  # waiting out failure_timeout
             "redraw": jp.zeros((), bool),  # the orb moves at the start of the next step
+            **placement,
         }
         metrics = {
             **{f"reward/{k}": zero for k in ("closeness", "first_touch", "second_touch")},
@@ -230,7 +242,7 @@ class TwoTouch(WalkerTask):
         random point (drawn from the episode's key and this step's index) and restarts the trial."""
         info = state.info
         redraw = info["redraw"]
-        new = self.draw_orb(jax.random.fold_in(info["rng"], info["t"]))
+        new = self.draw_orb(jax.random.fold_in(info["rng"], info["t"]), info)
         orb = jp.where(redraw, new, state.data.mocap_pos[self._orb])
         data = state.data.replace(mocap_pos=state.data.mocap_pos.at[self._orb].set(orb))
         info = {
@@ -314,11 +326,15 @@ class TwoTouch(WalkerTask):
         return new, events
 
     # --- what the task measures ------------------------------------------------------------------
-    def draw_orb(self, key: jax.Array) -> jax.Array:
-        """A new orb centre: x, y uniform in ±target_area, z = orb_height; shape (3,)."""
+    def draw_orb(self, key: jax.Array, info: dict[str, jax.Array] | None = None) -> jax.Array:
+        """A new orb centre: x, y uniform in ±target_area, z = orb_height (an episode's own, from
+        `info["orb_area"]` and `info["orb_height"]` where its level set them); shape (3,)."""
         cfg: TwoTouchConfig = self._config
-        xy = jax.random.uniform(key, (2,), minval=-1.0, maxval=1.0) * jp.asarray(cfg.target_area, jp.float32)
-        return jp.concatenate([xy, jp.full((1,), cfg.orb_height, jp.float32)])
+        info = info or {}
+        area = info.get("orb_area", jp.asarray(cfg.target_area, jp.float32))
+        height = info.get("orb_height", jp.float32(cfg.orb_height))
+        xy = jax.random.uniform(key, (2,), minval=-1.0, maxval=1.0) * area
+        return jp.concatenate([xy, jp.reshape(height, (1,)).astype(jp.float32)])
 
     def orb(self, data: mjx.Data) -> jax.Array:
         """The orb's centre (world frame), shape (3,)."""
