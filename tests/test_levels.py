@@ -193,18 +193,20 @@ def test_level_settings_are_checked_before_anything_is_built():
         ({**good, "start": 4}, r"levels.start must be a level in 0..3"),
         ({**good, "easiest": {}}, "levels.easiest must give the env_config values of level 0"),
         ({**good, "easiest": {"episode_length": 3}}, "test_point_levels cannot vary episode_length per episode"),
-        ({"count": 0, "measure": "near"}, "count is 0 .levels off. but other levels keys are set"),
+        ({"count": 0, "measure": "near"}, "count is 0 .levels off. but measure is set"),
     ]
     for values, message in cases:
         with pytest.raises(VnlError, match=message):
             build(values).validate()
+    same = build({**good, "easiest": {"target": 1.0}})
+    same.validate()  # evaluable: `vnl eval RUN --set env_config...` on a levels run's easiest terrain
     with pytest.raises(VnlError, match="levels change nothing: levels.easiest equals the env config"):
-        build({**good, "easiest": {"target": 1.0}}).validate()
+        same.check_trainable()
     with pytest.raises(VnlError, match="levels.easiest must give"):
         build({**good, "easiest": {"corridor": {}}}).validate()
     stages = [{"steps": 512, "env_config": {"target": 0.0}}, {"steps": 512, "env_config": {"episode_length": 5}}]
     with pytest.raises(VnlError, match="levels change nothing"):  # stage 1 is level 0, stage 2 the easiest too
-        build({**good}, curriculum=stages, env_config={"target": 0.0}).validate()
+        build({**good}, curriculum=stages, env_config={"target": 0.0}).check_trainable()
     with pytest.raises(VnlError, match="levels cannot train with randomize yet"):
         build(good, randomize={"friction": [0.9, 1.1]}).validate()
     with pytest.raises(VnlError, match="test_point cannot vary target per episode .*level fields: none"):

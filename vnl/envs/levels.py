@@ -68,8 +68,13 @@ class LevelsConfig:
     def validate(self) -> None:
         # Messages name the key without the section: the caller (typed_config) prefixes "levels.".
         if not self.enabled:
-            if self != LevelsConfig():
-                raise VnlError("count is 0 (levels off) but other levels keys are set; set count >= 2 or drop them")
+            default = LevelsConfig()
+            extra = [f.name for f in dataclasses.fields(self) if getattr(self, f.name) != getattr(default, f.name)]
+            if extra:
+                raise VnlError(
+                    f"count is 0 (levels off) but {', '.join(extra)} {'is' if len(extra) == 1 else 'are'} set; "
+                    "set count >= 2 or drop them"
+                )
             return
         if not 2 <= self.count <= MAX_LEVELS:
             raise VnlError(f"count must be 0 (off) or in 2..{MAX_LEVELS:,}, got {self.count:,}")

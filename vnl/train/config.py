@@ -249,7 +249,14 @@ class TrainConfig:
 
     def check_trainable(self) -> None:
         """`VnlError` for what a valid config can evaluate but not train: one task of a suite
-        (`env_config.task`, which eval, record and render take)."""
+        (`env_config.task`, which eval, record and render take), and terrain levels that change
+        nothing (a levels run's checkpoints evaluated on its easiest terrain: `vnl eval RUN --set
+        env_config...`)."""
+        if self.levels.enabled and not self._levels_vary():
+            raise VnlError(
+                "levels change nothing: levels.easiest equals the env config of the run (and of every curriculum "
+                "stage); give level 0 easier values"
+            )
         task = getattr(self.resolved_env_config(), "task", None)
         if isinstance(self.resolved_env_config(), SuiteConfig) and task is not None:
             raise VnlError(
@@ -290,11 +297,16 @@ class TrainConfig:
         if refused:
             raise VnlError(f"levels cannot train with {refused[0]} yet; turn one of them off")
         check_fields(self.env, getattr(registry.entry(self.env).factory, "level_fields", ()), self.levels.easiest)
+        self._levels_vary()
+
+    def _levels_vary(self) -> bool:
+        """Whether level 0 (each stage's env config with `levels.easiest`, a valid env config or a
+        `VnlError` naming the stage) differs from the stage's own config in any stage."""
         easiest = dict(self.levels.easiest)
         stages = [config_lib.merge(self.env_config, s.env_config) for s in self.curriculum] or [self.env_config]
         varies = False
         for i, env_config in enumerate(stages):
-            try:  # each stage's level 0: its own config with `easiest`
+            try:
                 easy = registry.env_config(self.env, config_lib.merge(env_config, easiest))
             except VnlError as e:
                 raise VnlError(f"levels.easiest{f' (curriculum[{i}])' if self.curriculum else ''}: {e}") from None
@@ -303,11 +315,7 @@ class TrainConfig:
                 not np.array_equal(np.asarray(config_value(easy, p)), np.asarray(config_value(hard, p)))
                 for p in field_paths(easiest)
             )
-        if not varies:
-            raise VnlError(
-                "levels change nothing: levels.easiest equals the env config of the run (and of every curriculum "
-                "stage); give level 0 easier values"
-            )
+        return varies
 
     def _validate_curriculum(self) -> None:
         """Every stage's env config is valid, and the stages' steps add up to ppo.num_timesteps."""
