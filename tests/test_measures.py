@@ -64,7 +64,7 @@ def test_a_scripted_walk_through_the_corridor_counts_each_gap_once():
 
 
 @pytest.mark.xdist_group("ant_escape_bowl-c")
-def test_a_body_placed_outside_the_bowl_counts_as_escaped_once():
+def test_a_body_placed_outside_the_bowl_counts_as_escaped_once_and_climbed_up_to_the_rim():
     env = vnl.make("ant_escape_bowl", impl="c")
     state = jax.jit(env.reset)(jax.random.PRNGKey(0))
     step = jax.jit(env.step)
@@ -72,14 +72,24 @@ def test_a_body_placed_outside_the_bowl_counts_as_escaped_once():
     assert float(state.metrics["measure/escaped"]) == 0
     assert float(state.metrics["measure/time_in_bowl"]) == pytest.approx(env.dt)
     r = env.config.bowl.half_size
-    qpos = state.data.qpos.at[0].set(r + 1.0).at[2].set(1.0)  # the root 1 m beyond the rim, 1 m up
+    start = float(state.info["farthest"])  # the root's distance from the centre, ~0 at the centre's spawn
+    qpos = state.data.qpos.at[0].set(r / 2).at[2].set(1.0)  # half way out, 1 m up
+    state = step(state.replace(data=env.forward(state.data.replace(qpos=qpos))), jp.zeros(env.action_size))
+    half = float(state.metrics["measure/climbed"])
+    assert half > r / 2 - start - 0.1 and float(state.metrics["measure/escaped"]) == 0  # out before an escape
+    qpos = state.data.qpos.at[0].set(0.0)  # back at the centre: the farthest so far stays
+    state = step(state.replace(data=env.forward(state.data.replace(qpos=qpos))), jp.zeros(env.action_size))
+    assert float(state.metrics["measure/climbed"]) == 0
+    qpos = state.data.qpos.at[0].set(r + 1.0)  # the root 1 m beyond the rim, 1 m up
     state = state.replace(data=env.forward(state.data.replace(qpos=qpos)))
     state = step(state, jp.zeros(env.action_size))
     assert float(state.metrics["measure/escaped"]) == 1  # counted at the step it got out ...
     assert float(state.metrics["measure/time_in_bowl"]) == pytest.approx(env.dt)
+    assert half + float(state.metrics["measure/climbed"]) == pytest.approx(r - start, abs=1e-5)  # capped at the rim
     state = step(state, jp.zeros(env.action_size))
     assert float(state.metrics["measure/escaped"]) == 0  # ... once
     assert float(state.metrics["measure/time_in_bowl"]) == 0
+    assert float(state.metrics["measure/climbed"]) == 0
 
 
 def test_summary_and_records_derive_fractions_and_escape_times():

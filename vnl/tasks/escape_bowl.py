@@ -15,7 +15,10 @@ the ground is at points around it, a height scan).
 
 Task measures (`metrics["measure/..."]`, summed over an episode): `escaped`, 1 if the head (the
 root for other walkers) got at least R from the centre (out of the bowl: the escape factor is
-1 there), and `time_in_bowl`, the seconds until then (the whole episode if it never got out).
+1 there), `time_in_bowl`, the seconds until then (the whole episode if it never got out), and
+`climbed`, how far out (m) it got beyond where it spawned: the farthest distance from the centre,
+capped at R, less the spawn's (0 to R - spawn distance; it grows before the first escape, so
+terrain levels can promote on it: docs/experiments/terrain-levels.md).
 """
 
 from __future__ import annotations
@@ -154,8 +157,10 @@ class EscapeBowl(WalkerTask):
             "physics_nan": zero,
             "measure/escaped": zero,
             "measure/time_in_bowl": zero,
+            "measure/climbed": zero,
         }
-        return State(data, self._obs(data), zero, zero, metrics, {"rng": rng, "escaped": zero})
+        info = {"rng": rng, "escaped": zero, "farthest": self._reach(data)}
+        return State(data, self._obs(data), zero, zero, metrics, info)
 
     # A blown-up step's terms are v * ok, v >= 0: +0.0 whatever v; docs/experiments/compact-checkpoints.md
     previous_state_reads = ()
@@ -185,6 +190,7 @@ class EscapeBowl(WalkerTask):
         before = state.info["escaped"]
         out = (jp.linalg.norm(self._head_pos(data)) >= self._config.bowl.half_size) & (ok > 0)
         escaped = jp.maximum(before, out.astype(jp.float32))
+        farthest = jp.where(ok > 0, jp.maximum(state.info["farthest"], self._reach(data)), state.info["farthest"])
         metrics = {
             **state.metrics,
             "reward/escape": reward,
@@ -194,8 +200,9 @@ class EscapeBowl(WalkerTask):
             "physics_nan": blew_up,
             "measure/escaped": escaped - before,
             "measure/time_in_bowl": self.dt * (1.0 - before),
+            "measure/climbed": farthest - state.info["farthest"],
         }
-        info = {**state.info, "escaped": escaped}
+        info = {**state.info, "escaped": escaped, "farthest": farthest}
         return state.replace(data=data, obs=self._obs(data), reward=reward, done=blew_up, metrics=metrics, info=info)
 
     def reward_factors(self, data: mjx.Data) -> tuple[jax.Array, jax.Array]:
@@ -207,6 +214,10 @@ class EscapeBowl(WalkerTask):
         zz = data.xmat[self._upright_bodies, 2, 2]
         upright = jp.min(rewards.tolerance(zz, (dev, float("inf")), margin=1 + dev))
         return escape, upright
+
+    def _reach(self, data: mjx.Data) -> jax.Array:
+        """The head's distance from the centre, capped at the rim (`bowl.half_size`); a scalar."""
+        return jp.minimum(jp.linalg.norm(self._head_pos(data)), self._config.bowl.half_size)
 
     def _head_pos(self, data: mjx.Data) -> jax.Array:
         if self._head_site is not None:
