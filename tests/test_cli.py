@@ -81,7 +81,13 @@ def test_eval_prints_table_and_writes_json(trained_run, tmp_path):
         assert set(summary[key]) == {"mean", "std"}, key
         assert key in p.stdout
     assert 1 <= summary["episode_length"]["mean"] <= 20
-    assert summary["env_set"] == []
+    assert summary["env_set"] == [] and summary["actions"] == "mean"
+    # --stochastic: the policy's sampled actions, as training ran it (same seed, same starts)
+    p = run("eval", out, "--episodes", "3", "--steps", "20", "--stochastic", "--out", tmp_path / "s.json")
+    assert p.returncode == 0, p.stderr
+    sampled = json.loads((tmp_path / "s.json").read_text())
+    assert sampled["actions"] == "sampled" and "sampled actions" in p.stdout
+    assert sampled["episode_reward/ctrl_cost"]["mean"] != summary["episode_reward/ctrl_cost"]["mean"]
 
 
 @pytest.mark.slow

@@ -18,6 +18,7 @@ def add(sub: Any) -> None:
     p.add_argument("--steps", type=options.COUNT, help="max steps per episode (default: episode length)")
     options.checkpoint_flag(p)
     p.add_argument("--seed", type=options.SEED, default=0)
+    options.stochastic_flag(p)
     p.add_argument("--out", help="JSON file (default <run_dir>/eval.json)")
     options.task_variant_flag(p)
     options.cache_flags(p)
@@ -37,13 +38,16 @@ def run(args: argparse.Namespace) -> int:
     from vnl.envs.suite import SuiteEnv
     from vnl.policy import load_run
 
-    run = load_run(args.run_dir, step=checks.chosen_step(args.run_dir, args.step), env_set=args.set)
+    step = checks.chosen_step(args.run_dir, args.step)
+    run = load_run(args.run_dir, deterministic=not args.stochastic, step=step, env_set=args.set)
     variant = f" with {' '.join(args.set)}" if args.set else ""
+    variant += ", sampled actions" if args.stochastic else ""
     summary: dict[str, Any] = {
         "run_dir": str(run.run_dir),
         "env": run.config.env,
         "checkpoint_step": run.step,
         "env_set": args.set,
+        "actions": "sampled" if args.stochastic else "mean",
     }
     if isinstance(run.env, SuiteEnv):  # every task, each with its own episode length
         p = run.config.ppo

@@ -25,7 +25,7 @@ def add(sub: Any) -> None:
     p.add_argument("--steps", type=options.COUNT, help="control steps per episode (default: episode length)")
     options.checkpoint_flag(p)
     p.add_argument("--seed", type=options.SEED, default=0)
-    p.add_argument("--stochastic", action="store_true", help="sample actions instead of the mean action")
+    options.stochastic_flag(p)
     p.add_argument(
         "--format",
         choices=sorted(FORMATS),

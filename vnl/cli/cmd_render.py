@@ -22,6 +22,7 @@ def add(sub: Any) -> None:
     p.add_argument("--width", type=options.integer(16, 4096), default=480)
     p.add_argument("--height", type=options.integer(16, 4096), default=360)
     p.add_argument("--seed", type=options.SEED, default=0)
+    options.stochastic_flag(p)
     p.add_argument("--list-cameras", action="store_true", help="list the model's named cameras")
     p.add_argument("--env", help="with --list-cameras and no RUN_DIR: the environment")
     options.task_variant_flag(p)
@@ -57,7 +58,8 @@ def run(args: argparse.Namespace) -> int:
     from vnl.policy import load_run
     from vnl.rollout import policy_video
 
-    run = load_run(args.run_dir, step=checks.chosen_step(args.run_dir, args.step), env_set=args.set)
+    step = checks.chosen_step(args.run_dir, args.step)
+    run = load_run(args.run_dir, deterministic=not args.stochastic, step=step, env_set=args.set)
     out = args.out or default_out(args)
     path, n = policy_video(run.env, run.policy, out, args.camera, args.steps, args.width, args.height, args.seed)
     print(f"wrote {n} frames to {path}")

@@ -95,6 +95,14 @@ def task_variant_flag(p: argparse.ArgumentParser) -> None:
     )
 
 
+def stochastic_flag(p: argparse.ArgumentParser) -> None:
+    # PPO trains the sampled policy; a task can be solved by its noise alone (two-touch:
+    # docs/experiments/terrain-levels.md), so eval, render and record can run it.
+    p.add_argument(
+        "--stochastic", action="store_true", help="sample actions from the policy (as in training) instead of the mean"
+    )
+
+
 def checkpoint_flag(p: argparse.ArgumentParser) -> None:
     p.add_argument("--step", type=step_arg, help="checkpoint step, or `best` (log.keep_best) (default: newest)")
 
