@@ -113,6 +113,26 @@ def test_an_env_promoted_past_the_last_level_goes_to_a_level_drawn_at_random():
     assert landed <= {0, 1, 2} and len(landed) > 1
 
 
+def test_training_redraws_the_corridor_each_episode_only_with_new_episode_on_reset():
+    """Without levels, training's auto-reset replays each env's first corridor by default and draws
+    a new one for every finished episode with `env_config.new_episode_on_reset` (episodes of 2
+    steps here); nothing changes within an episode."""
+    seen = {}
+    for redraw in (False, True):
+        env = registry.make("ant_run_gaps", impl="c", new_episode_on_reset=redraw)
+        wrapped = wrap_for_training(env, episode_length=2)
+        state = jax.jit(wrapped.reset)(jax.random.split(jax.random.PRNGKey(2), 2))
+        step = jax.jit(wrapped.step)
+        corridors = [np.asarray(state.info["layout"].start)]
+        for _ in range(4):
+            state = step(state, jp.zeros((2, env.action_size)))
+            corridors.append(np.asarray(state.info["layout"].start))
+        assert (corridors[1] == corridors[0]).all()  # the first episode's 2 steps: one corridor
+        seen[redraw] = [bool((corridors[k] == corridors[j]).all()) for j, k in ((0, 2), (2, 4))]
+        assert len({c.tobytes() for c in corridors[2]}) == 2  # every env its own corridor
+    assert seen == {False: [True, True], True: [False, False]}
+
+
 def test_gaps_are_drawn_from_a_given_range_and_from_the_tasks_own_bit_for_bit():
     env = registry.make("ant_run_gaps", impl="c")
     key = jax.random.PRNGKey(3)

@@ -44,10 +44,11 @@ class AutoResetWrapper(brax_training.Wrapper):
     observation and the task's own `info` entries (a Brax pipeline's state, the furthest point
     reached, ...).
 
-    An env whose class sets `new_episode_on_reset = True` (a maze redrawn every episode) gets a
-    new first state instead: at a step where any env's episode ended, the batch is reset with keys
-    folded from each env's `info["rng"]` and the finished envs take theirs; other steps pay nothing
-    (`lax.cond`). Replaying the first state would give each env one maze for the whole run."""
+    An env whose `new_episode_on_reset` is true (a walker task's `env_config.new_episode_on_reset`:
+    a maze or a corridor redrawn every episode) gets a new first state instead: at a step where any
+    env's episode ended, the batch is reset with keys folded from each env's `info["rng"]` and the
+    finished envs take theirs; other steps pay nothing (`lax.cond`). Replaying the first state
+    would give each env one maze for the whole run."""
 
     def __init__(self, env: Any) -> None:
         super().__init__(env)

@@ -78,6 +78,12 @@ class WalkerTaskConfig:
     # A probe of how steep a trained gait climbs (`vnl eval RUN --set env_config.incline=10`) and a
     # curriculum knob (docs/experiments/rat-bowl.md).
     incline: float = 0.0
+    # Training's auto-reset gives every finished env a new episode drawn from its own key (a new
+    # corridor, spawn direction or orb: `vnl.envs.wrappers.AutoResetWrapper`), as dm_control resets
+    # its tasks. Off, each training env replays the first episode drawn for it (evaluations draw
+    # new episodes either way); maze forage and imitation default to on. Terrain levels always
+    # draw anew. docs/experiments/terrain-levels.md#a-new-corridor-every-episode
+    new_episode_on_reset: bool = False
 
     def validate(self) -> None:
         walkers.spec(self.walker)  # a registered name, or the list of them
@@ -345,6 +351,7 @@ class WalkerTask(Env):
         except NotImplementedError as e:
             raise VnlError(f"MJX cannot simulate this model: {e}") from None
         self._walker = walker
+        self.new_episode_on_reset = config.new_episode_on_reset  # read by training's auto-reset
         self.compat_report = report or mjx_compat.Report((), ())
         self._root = body_id(model, walker.root_body)
         self._init_qpos = jp.asarray(model.qpos0, dtype=jp.float32)

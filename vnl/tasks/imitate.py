@@ -89,6 +89,7 @@ class ImitateConfig(WalkerTaskConfig):
     iterations: int = 8
     ls_iterations: int = 8
     reset_noise_scale: float = 0.0  # ± uniform noise (rad) on the joints of the reference pose at reset
+    new_episode_on_reset: bool = True  # every episode its own clip and start frame
     floor_size: float = 10.0
     # A clips file (vnl.mocap.clips; `vnl mocap fit` writes them); "": vnl's own clips of the walker.
     clips: str = ""
@@ -185,7 +186,6 @@ class Imitate(WalkerTask):
     """See the module docstring. `tracking` (reward terms and errors against one reference frame)
     and `reference_observation` (the egocentric reference) are pure: tests drive them directly."""
 
-    new_episode_on_reset = True  # every episode its own clip and start frame (envs.wrappers.AutoResetWrapper)
     reference_blocks = REFERENCE_BLOCKS  # what the intention network encodes (vnl.ppo.intention)
 
     def __init__(self, config: ImitateConfig) -> None:

@@ -87,6 +87,7 @@ class MazeForageConfig(FallRules, WalkerTaskConfig):
     n_substeps: int = 10
     iterations: int = 4  # the rat needs 4 Newton iterations at 2 ms (see run.RODENT_RUN)
     reset_noise_scale: float = 0.01
+    new_episode_on_reset: bool = True  # training's auto-reset draws a new maze, as dm_control
     target_radius: float = 0.05
     target_height: float = 0.125  # the target centre's height above the floor
     target_reward: float = 50.0  # paid once per target, at its first touch
@@ -122,8 +123,6 @@ a target (docs/experiments/rat-maze.md)."""
 class MazeForage(WalkerTask):
     """See the module docstring. `step` places the collision window, runs the physics, then
     `react` (touches, rewards, measures, observation): tests drive `react` with scripted states."""
-
-    new_episode_on_reset = True  # training's auto-reset draws a new maze (vnl.envs.wrappers), as dm_control
 
     def __init__(self, config: MazeForageConfig) -> None:
         p = config.maze

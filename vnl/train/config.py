@@ -150,6 +150,11 @@ class StageConfig:
             raise VnlError(f"steps must be >= 1, got {self.steps}")
 
 
+# env config fields added after runs were saved with configs hashed (`content_hash`): at the
+# env class's default they are left out of the hash, so a parent's recorded hash still matches.
+ENV_FIELDS_ADDED = ("spawn_distance", "new_episode_on_reset")
+
+
 @dataclasses.dataclass(frozen=True)
 class TrainConfig:
     """Everything that defines a training run (written to `<run>/config.yaml`).
@@ -374,6 +379,10 @@ class TrainConfig:
             values.pop("decoder")
         if self.levels == LevelsConfig():  # runs from before terrain levels keep their hash
             values.pop("levels")
+        fields = {f.name: f.default for f in dataclasses.fields(type(registry.default_config(self.env)))}
+        for key in ENV_FIELDS_ADDED:  # runs from before these env fields keep their hash
+            if key in fields and values["env_config"].get(key, fields[key]) == fields[key]:
+                values["env_config"].pop(key, None)
         for key, default in (("actor_delay", 0), ("init_alpha", 1.0), ("target_entropy", None)):
             if getattr(self.sac, key) == default:  # SAC runs from before the key keep their hash
                 values["sac"].pop(key)
