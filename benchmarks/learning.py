@@ -19,9 +19,16 @@ date, the vnl commit and the command; and a frame of seed 0's trained policy mid
 (docs/images/results/ENV.png). The docs' result cards are drawn from that file
 (scripts/docs/results.py). Only runs of the env's own preset without `--set` belong there.
 
+The evaluations (metrics.jsonl's, and so the table and the cards) run the policy's mean action.
+With `--sampled N` each run is also evaluated as training ran it, with sampled actions (`vnl eval
+RUN --stochastic --episodes N`, the untrained and the last checkpoint): a second table, and in the
+results file each seed's `sampled` values, which the card shows. A policy whose mean action stops
+short of a target its samples reach (two-touch's rat: docs/experiments/rat-two-touch.md) shows
+its learning there.
+
     .venv/bin/python benchmarks/learning.py --out runs/learning [--envs ant_run rodent_run ...]
         [--seeds 0 1] [--preset cpu] [--set KEY=VALUE ...] [--compile-cache DIR]
-        [--results docs/results/results.json] [--alongside "what else ran"]
+        [--results docs/results/results.json] [--alongside "what else ran"] [--sampled N]
 
 Task measures (eval metrics, per evaluation episode): run tasks: mean forward velocity (m/s) and
 the fraction of the episode upright; gaps: gaps crossed and distance along the corridor (m); bowl:
@@ -93,6 +100,28 @@ def train(run: Path, env: str, seed: int, args: argparse.Namespace) -> None:
     curriculum.train(run, None, command, args.compile_cache)
 
 
+def sampled(run: Path, env: str, episodes: int) -> dict:
+    """The reward and task measures of `run`'s policy with sampled actions, as training runs it
+    (the evaluations use the mean action): `vnl eval RUN --stochastic --episodes N` on the untrained
+    (step 0) and the last checkpoint, each written beside the run (a rerun reads them back).
+    {"episodes": N, "untrained"/"trained": {metrics key: mean over episodes}, "untrained_std"/
+    "trained_std": {key: std}}."""
+    import json
+
+    keys = ["eval/episode_reward"] + [key for _, key, _ in MEASURES[task_of(env)]]
+    out: dict = {"episodes": episodes}
+    for name, step in (("untrained", ["--step", "0"]), ("trained", [])):
+        path = run / f"eval_sampled_{name}_{episodes}.json"
+        if not path.is_file():
+            vnl("eval", str(run), *step, "--episodes", str(episodes), "--stochastic", "--out", str(path), cache=None)
+        summary = json.loads(path.read_text())
+        # metrics.jsonl's eval/episode_measure/X is eval's X; eval/episode_reward its episode_reward
+        got = {k: summary[k.removeprefix("eval/").removeprefix("episode_measure/")] for k in keys}
+        out[name] = {k: v["mean"] for k, v in got.items()}
+        out[f"{name}_std"] = {k: v["std"] for k, v in got.items()}
+    return out
+
+
 def value(record: dict, key: str) -> float:
     v = record.get(key)
     return float("nan") if v is None else float(v)
@@ -148,6 +177,22 @@ def table(env: str, runs: dict[int, tuple[Path, list[dict]]]) -> list[str]:
         lines.append(row(env, str(seed), recs, best(env, run, recs), statistics.median(sps) if sps else float("nan")))
     if len(runs) > 1:
         lines.append(spread(env, [recs for _, recs in runs.values()]))
+    return lines
+
+
+def sampled_table(env: str, samples: dict[int, dict]) -> list[str]:
+    """The sampled-action evaluations (`samples`: seed -> `sampled`'s), a row per seed:
+    `| env | seed | reward untrained -> trained | measures ... |`, each trained value ± its std."""
+    measures = [("eval reward", "eval/episode_reward", ".1f"), *MEASURES[task_of(env)]]
+    episodes = next(iter(samples.values()))["episodes"]
+    head = ["env", "seed"] + [f"{label}, sampled actions ({episodes} episodes)" for label, _, _ in measures]
+    lines = ["| " + " | ".join(head) + " |", "|---|---|" + "---:|" * len(measures)]
+    for seed, s in samples.items():
+        cells = [env, str(seed)]
+        for _, key, spec in measures:
+            trained = f"{format(s['trained'][key], spec)} ± {format(s['trained_std'][key], spec.lstrip('+'))}"
+            cells.append(f"{format(s['untrained'][key], spec)} → {trained}")
+        lines.append("| " + " | ".join(cells) + " |")
     return lines
 
 
@@ -214,8 +259,11 @@ def frame(run: Path, png: Path, step: int = 100) -> None:
     mediapy.write_image(str(png), image[0])
 
 
-def result_entry(env: str, args: argparse.Namespace, runs: dict[int, list[dict]], frame_path: str) -> dict:
-    """The results-file entry of `env` from its runs' records (`runs`: seed -> metrics records)."""
+def result_entry(
+    env: str, args: argparse.Namespace, runs: dict[int, list[dict]], frame_path: str, samples: dict[int, dict]
+) -> dict:
+    """The results-file entry of `env` from its runs' records (`runs`: seed -> metrics records) and,
+    with `--sampled`, their sampled-action evaluations (`samples`: seed -> `sampled`'s)."""
     import datetime
     import subprocess
 
@@ -231,6 +279,8 @@ def result_entry(env: str, args: argparse.Namespace, runs: dict[int, list[dict]]
             "steps_per_sec": round(statistics.median(sps)) if sps else None,
             "curve": {"step": [int(r["step"]) for r in recs], **{k: [value(r, k) for r in recs] for k in keys}},
         }
+        if seed in samples:
+            seeds[str(seed)]["sampled"] = samples[seed]
     commit = subprocess.run(
         ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=Path(__file__).parent
     )
@@ -247,7 +297,8 @@ def result_entry(env: str, args: argparse.Namespace, runs: dict[int, list[dict]]
         "date": datetime.date.today().isoformat(),
         "vnl_commit": commit.stdout.strip() or "unknown",
         "command": f".venv/bin/python benchmarks/learning.py --out RUNS --envs {env} --seeds {' '.join(map(str, runs))}"
-        + (f" --preset {args.preset}" if args.preset != "cpu" else ""),
+        + (f" --preset {args.preset}" if args.preset != "cpu" else "")
+        + (f" --sampled {args.sampled}" if args.sampled else ""),
         "alongside": args.alongside,
     }
 
@@ -274,7 +325,16 @@ def main() -> None:
     parser.add_argument("--compile-cache", help="JAX compilation cache directory (default: vnl's)")
     parser.add_argument("--results", help="the results file to update (the docs': docs/results/results.json)")
     parser.add_argument("--alongside", default="nothing", help="what else ran on the machine, for the results file")
+    parser.add_argument(
+        "--sampled",
+        type=int,
+        default=0,
+        metavar="N",
+        help="also evaluate N episodes with sampled actions (vnl eval --stochastic), untrained and trained",
+    )
     args = parser.parse_args()
+    if args.sampled < 0:
+        parser.error(f"--sampled takes a number of episodes >= 0, got {args.sampled}")
     if args.results and args.set:
         parser.error("--results records the presets as shipped: drop --set")
     out = Path(args.out)
@@ -288,13 +348,18 @@ def main() -> None:
             train(run, env, seed, args)
         curves(env, dirs, out)
         lines += table(env, {seed: (run, records(run)) for seed, run in zip(args.seeds, dirs, strict=True)}) + [""]
+        samples = {}
+        if args.sampled:
+            samples = {seed: sampled(run, env, args.sampled) for seed, run in zip(args.seeds, dirs, strict=True)}
+            lines += sampled_table(env, samples) + [""]
         write_section(out / "learning.md", lines)
         if args.results:
             results = Path(args.results)
             png = results.parent.parent / "images" / "results" / f"{env}.png"
             frame(dirs[0], png)
             runs = {seed: records(run) for seed, run in zip(args.seeds, dirs, strict=True)}
-            update_results(results, result_entry(env, args, runs, str(png.relative_to(results.parent.parent))))
+            rel = str(png.relative_to(results.parent.parent))
+            update_results(results, result_entry(env, args, runs, rel, samples))
             print(f"[learning] {env}: {results} and {png}", flush=True)
     print("\n".join(lines))
     print(f"[learning] wrote {out / 'learning.md'}")

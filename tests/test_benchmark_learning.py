@@ -39,7 +39,14 @@ def test_learning_benchmark_tabulates_untrained_and_trained_runs(tmp_path):
     # The same invocation again replaces its own section; another one (seed 1 alone) is added after it.
     assert (out / "learning.md").read_text() == table
     at = cmd.index("--seeds")
-    seed1 = [*cmd[: at + 1], "1", *cmd[at + 3 :]]
-    assert subprocess.run(seed1, capture_output=True, text=True, cwd=ROOT, timeout=300).returncode == 0
+    seed1 = [*cmd[: at + 1], "1", *cmd[at + 3 :], "--sampled", "2"]  # and its sampled-action evaluations
+    p = subprocess.run(seed1, capture_output=True, text=True, cwd=ROOT, timeout=300)
+    assert p.returncode == 0, p.stdout[-3000:] + p.stderr[-3000:]
     both = (out / "learning.md").read_text()
     assert both.startswith(table.rstrip("\n")) and both.count("Preset `tiny`") == 2 and "ant_run, seeds 1." in both
+    for name, step in (("untrained", 0), ("trained", last["step"])):
+        evaluated = json.loads((out / "ant_run-s1" / f"eval_sampled_{name}_2.json").read_text())
+        assert evaluated["actions"] == "sampled" and evaluated["checkpoint_step"] == step and evaluated["episodes"] == 2
+        vx = evaluated["mean_forward_velocity"]["mean"]
+        row = both.split("sampled actions (2 episodes) |")[-1].splitlines()[2]
+        assert row.startswith("| ant_run | 1 | ") and (f"{vx:+.2f} →" if step == 0 else f"→ {vx:+.2f} ±") in row

@@ -110,6 +110,17 @@ def test_result_cards_come_from_the_results_file(tmp_path):
     assert "**1289.9**" in card and "1289.4 to 1290.4" in card and "**+2.01**" in card and "a test machine" in card
     assert pages["results/ant_run_curves.png"][:4] == b"\x89PNG"
     assert "| [ant_run](ant_run.md) | vx (m/s): +2.01 (2 seeds)" in pages["results/index.md"]
+    assert "sampled actions" not in card
+    for s in (0, 1):  # `benchmarks/learning.py --sampled 16`: a second table
+        mean = {"eval/episode_reward": 900.0 + s, "eval/mean_forward_velocity": 1.5 + s / 10}
+        zeros = dict.fromkeys(mean, 0.0)
+        std = {"eval/episode_reward": 20.0, "eval/mean_forward_velocity": 0.25}
+        sampled = {"episodes": 16, "untrained": zeros, "untrained_std": zeros, "trained": mean, "trained_std": std}
+        entry["seeds"][str(s)]["sampled"] = sampled
+    (docs / "results" / "results.json").write_text(json.dumps({"ant_run": entry}))
+    card = results.pages(docs)["results/ant_run.md"]
+    assert "`vnl eval RUN --stochastic --episodes 16`" in card
+    assert "| vx (m/s) | +0.00 | **+1.55** | +1.50 to +1.60 | +1.50 ± 0.25, +1.60 ± 0.25 |" in card, card
 
 
 def test_an_env_not_yet_measured_gets_a_card_saying_so_with_the_command(tmp_path):

@@ -102,6 +102,7 @@ def card(entry: dict[str, Any], notes: list[str] | None = None) -> str:
         per = ", ".join(f"{x:,}" for x in sps)
         out.append(f"| training env steps/s (median) | | {statistics.mean(sps):,.0f} | | {per} |")
     steps = {s["steps"] for s in seeds.values()}
+    out += _sampled_rows(entry)
     out += [
         "",
         f"Env steps: {', '.join(f'{x:,}' for x in sorted(steps))}.",
@@ -118,6 +119,30 @@ def card(entry: dict[str, Any], notes: list[str] | None = None) -> str:
         *research(notes or []),
     ]
     return "\n".join(out)
+
+
+def _sampled_rows(entry: dict[str, Any]) -> list[str]:
+    """The card's second table, when the entry holds sampled-action evaluations (`benchmarks/
+    learning.py --sampled N`: every seed's `sampled`); else nothing."""
+    samples = [s["sampled"] for s in entry["seeds"].values() if "sampled" in s]
+    if not samples or len(samples) != len(entry["seeds"]):
+        return []
+    out = [
+        "",
+        f"The evaluations above run the policy's mean action. With sampled actions, as training runs it "
+        f"(`vnl eval RUN --stochastic --episodes {samples[0]['episodes']}`, the untrained and the last checkpoint):",
+        "",
+        "| measure (sampled actions) | untrained | trained: mean | range over seeds | per seed (± std over episodes) |",
+        "|---|---:|---:|---|---|",
+    ]
+    for label, key, spec in entry["measures"]:
+        trained = [s["trained"][key] for s in samples]
+        mean, spread = _mean_range(trained, spec)
+        plain = spec.lstrip("+")
+        per = ", ".join(f"{format(s['trained'][key], spec)} ± {format(s['trained_std'][key], plain)}" for s in samples)
+        untrained = statistics.mean(s["untrained"][key] for s in samples)
+        out.append(f"| {label} | {format(untrained, spec)} | **{mean}** | {spread} | {per} |")
+    return out
 
 
 def pending_card(env: str, notes: list[str] | None = None) -> str:
