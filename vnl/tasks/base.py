@@ -82,7 +82,7 @@ class WalkerTaskConfig:
     # corridor, spawn direction or orb: `vnl.envs.wrappers.AutoResetWrapper`), as dm_control resets
     # its tasks. Off, each training env replays the first episode drawn for it (evaluations draw
     # new episodes either way); maze forage and imitation default to on. Terrain levels always
-    # draw anew. docs/experiments/terrain-levels.md#a-new-corridor-every-episode
+    # draw anew. docs/experiments/terrain-levels.md#a-new-corridor-every-episode-2026-12-02-seed-0
     new_episode_on_reset: bool = False
 
     def validate(self) -> None:
