@@ -70,19 +70,13 @@ class WalkerTaskConfig:
     # dm_control's proprioception senses tilt (`world_zaxis`) but not yaw; without it the rat's
     # gait drifted off +x (docs/experiments/rat-gait.md). rodent_run's default.
     observe_heading: bool = False
-    # Tilt gravity by this many degrees about the world y-axis so that the floor is an incline
-    # rising along +x (the run's and the corridor's forward direction; negative: downhill). The
-    # floor stays the world's xy-plane, so the forces are those of a real slope but `world_zaxis`
-    # is the floor's normal, not gravity's up: the walker feels the slope only through its
-    # dynamics (dm_control's walkers sense gravity through an accelerometer, not observed here).
-    # A probe of how steep a trained gait climbs (`vnl eval RUN --set env_config.incline=10`) and a
-    # curriculum knob (docs/experiments/rat-bowl.md).
+    # Tilt gravity by this many degrees about the world y-axis: the floor rises along +x (negative:
+    # downhill). The forces are a real slope's, but `world_zaxis` is the floor's normal: the walker
+    # feels the slope through its dynamics alone (no accelerometer observed). A probe of how steep
+    # a gait climbs (`vnl eval RUN --set env_config.incline=10`); docs/how-to/custom-walker.md#slopes.
     incline: float = 0.0
-    # Training's auto-reset gives every finished env a new episode drawn from its own key (a new
-    # corridor, spawn direction or orb: `vnl.envs.wrappers.AutoResetWrapper`), as dm_control resets
-    # its tasks. Off, each training env replays the first episode drawn for it (evaluations draw
-    # new episodes either way); maze forage and imitation default to on. Terrain levels always
-    # draw anew. docs/experiments/terrain-levels.md#a-new-corridor-every-episode-2026-12-02-seed-0
+    # Training's auto-reset draws each finished env a new episode (corridor, spawn, orbs), as dm_control;
+    # off, each env replays its first (docs/how-to/custom-walker.md#new-episodes-in-training).
     new_episode_on_reset: bool = False
 
     def validate(self) -> None:

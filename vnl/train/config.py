@@ -150,11 +150,6 @@ class StageConfig:
             raise VnlError(f"steps must be >= 1, got {self.steps}")
 
 
-# env config fields added after runs were saved with configs hashed (`content_hash`): at the
-# env class's default they are left out of the hash, so a parent's recorded hash still matches.
-ENV_FIELDS_ADDED = ("spawn_distance", "new_episode_on_reset")
-
-
 @dataclasses.dataclass(frozen=True)
 class TrainConfig:
     """Everything that defines a training run (written to `<run>/config.yaml`).
@@ -380,7 +375,7 @@ class TrainConfig:
         if self.levels == LevelsConfig():  # runs from before terrain levels keep their hash
             values.pop("levels")
         fields = {f.name: f.default for f in dataclasses.fields(type(registry.default_config(self.env)))}
-        for key in ENV_FIELDS_ADDED:  # runs from before these env fields keep their hash
+        for key in ("spawn_distance", "new_episode_on_reset"):  # runs from before these env fields keep their hash
             if key in fields and values["env_config"].get(key, fields[key]) == fields[key]:
                 values["env_config"].pop(key, None)
         for key, default in (("actor_delay", 0), ("init_alpha", 1.0), ("target_entropy", None)):
