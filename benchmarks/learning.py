@@ -103,17 +103,18 @@ def train(run: Path, env: str, seed: int, args: argparse.Namespace) -> None:
 def sampled(run: Path, env: str, episodes: int) -> dict:
     """The reward and task measures of `run`'s policy with sampled actions, as training runs it
     (the evaluations use the mean action): `vnl eval RUN --stochastic --episodes N` on the untrained
-    (step 0) and the last checkpoint, each written beside the run (a rerun reads them back).
-    {"episodes": N, "untrained"/"trained": {metrics key: mean over episodes}, "untrained_std"/
-    "trained_std": {key: std}}."""
+    (step 0) and the last checkpoint, each written beside the run (a rerun reads them back unless
+    the run has trained on since). {"episodes": N, "untrained"/"trained": {metrics key: mean over
+    episodes}, "untrained_std"/"trained_std": {key: std}}."""
     import json
 
     keys = ["eval/episode_reward"] + [key for _, key, _ in MEASURES[task_of(env)]]
     out: dict = {"episodes": episodes}
-    for name, step in (("untrained", ["--step", "0"]), ("trained", [])):
+    for name, step in (("untrained", 0), ("trained", int(records(run)[-1]["step"]))):
         path = run / f"eval_sampled_{name}_{episodes}.json"
-        if not path.is_file():
-            vnl("eval", str(run), *step, "--episodes", str(episodes), "--stochastic", "--out", str(path), cache=None)
+        if not path.is_file() or json.loads(path.read_text()).get("checkpoint_step") != step:
+            args = ("--step", str(step), "--episodes", str(episodes), "--stochastic", "--out", str(path))
+            vnl("eval", str(run), *args, cache=None)
         summary = json.loads(path.read_text())
         # metrics.jsonl's eval/episode_measure/X is eval's X; eval/episode_reward its episode_reward
         got = {k: summary[k.removeprefix("eval/").removeprefix("episode_measure/")] for k in keys}
