@@ -32,7 +32,7 @@ from vnl.ppo.config import (  # noqa: F401 - PPO's settings, part of a run's con
     SACConfig,
     intention_without_reference,
 )
-from vnl.train import presets
+from vnl.train import config_compat, presets
 from vnl.vision.env import VisionConfig
 from vnl.walkers.from_file import file_sha256
 
@@ -374,13 +374,7 @@ class TrainConfig:
             values.pop("decoder")
         if self.levels == LevelsConfig():  # runs from before terrain levels keep their hash
             values.pop("levels")
-        fields = {f.name: f.default for f in dataclasses.fields(type(registry.default_config(self.env)))}
-        for key in ("spawn_distance", "new_episode_on_reset"):  # runs from before these env fields keep their hash
-            if key in fields and values["env_config"].get(key, fields[key]) == fields[key]:
-                values["env_config"].pop(key, None)
-        for key, default in (("actor_delay", 0), ("init_alpha", 1.0), ("target_entropy", None)):
-            if getattr(self.sac, key) == default:  # SAC runs from before the key keep their hash
-                values["sac"].pop(key)
+        values = config_compat.without_added_at_default(values)  # runs from before these keys keep their hash
         if self.algorithm == "ppo" and self.sac == SACConfig():  # runs from before SAC keep their hash
             values.pop("algorithm")
             values.pop("sac")
@@ -476,23 +470,4 @@ def read_config(run_dir: str | Path) -> TrainConfig:
     path = run_dir / "config.yaml"
     if not path.is_file():
         raise VnlError(f"{run_dir} is not a vnl run directory (no config.yaml)")
-    return config_lib.from_dict(TrainConfig, with_fields_added_since(config_lib.load_yaml(str(path))))
-
-
-_PLAIN = (bool, int, float, str, type(None), tuple)
-
-
-def with_fields_added_since(values: dict[str, Any]) -> dict[str, Any]:
-    """A saved run's values with the env config fields that vnl added after it was written.
-
-    A saved `env_config` is complete (`resolved`), so a field missing from it did not exist then.
-    It takes the field's class default (by convention off: the behaviour before the field), not
-    the env's current default: a run saved before `rodent_run` observed its heading rebuilds the
-    env it trained, with the observation width of its checkpoints. Unknown envs pass unchanged
-    (`from_dict` reports them)."""
-    env_config = values.get("env_config")
-    if not isinstance(env_config, dict) or values.get("env") not in registry.names():
-        return values
-    fields = dataclasses.fields(type(registry.default_config(values["env"])))
-    added = {f.name: f.default for f in fields if f.name not in env_config and isinstance(f.default, _PLAIN)}
-    return {**values, "env_config": {**env_config, **config_lib.to_dict(added)}} if added else values
+    return config_lib.from_dict(TrainConfig, config_compat.with_fields_added_since(config_lib.load_yaml(str(path))))
