@@ -202,23 +202,32 @@ task): no cpu row changed; gpu and tiny rows gained the rules and cameras the cp
 2026-12-01: every preset gained the `levels` section (terrain levels, vnl.envs.levels), off: count 0.
 2026-12-01: the bowls (and the suites that hold one) gained `spawn_distance: 0.0` (the centre).
 2026-12-02: the walker tasks gained `new_episode_on_reset` (false; maze forage and imitation true,
-as they redrew their episodes before)."""
+as they redrew their episodes before).
+2026-12-02: every preset gained `ppo.normalize_advantage: batch` (Brax's, as before)."""
 
 
 def test_the_env_fields_added_since_leave_a_configs_hash_as_it_was_before_them():
-    """A run saved before `new_episode_on_reset` or `spawn_distance` existed hashes as it did then
-    (a warm-started child's `init.config_hash` still matches its parent); set otherwise, they
-    change the hash."""
+    """A run saved before `new_episode_on_reset`, `spawn_distance` or `ppo.normalize_advantage`
+    existed hashes as it did then (a warm-started child's `init.config_hash` still matches its
+    parent); set otherwise, they change the hash."""
     import hashlib
 
-    for env, key, other in (("ant_run_gaps", "new_episode_on_reset", True), ("ant_escape_bowl", "spawn_distance", 2.0)):
+    cases = (
+        ("ant_run_gaps", "env_config", "new_episode_on_reset", True),
+        ("ant_escape_bowl", "env_config", "spawn_distance", 2.0),
+        ("ant_run", "ppo", "normalize_advantage", "none"),
+    )
+    for env, section, key, other in cases:
         cfg = train_config.resolved(train_config.build(env, "tiny"))
         unused = ("log", "decoder", "levels", "algorithm", "sac")  # the sections a PPO run's hash leaves out
         before = {k: v for k, v in config_lib.to_dict(cfg).items() if k not in unused}
         for added in ("new_episode_on_reset", "spawn_distance"):
             before["env_config"].pop(added, None)
+        before["ppo"].pop("normalize_advantage")
         assert cfg.content_hash() == hashlib.sha256(yaml.safe_dump(before, sort_keys=True).encode()).hexdigest()[:16]
-        assert dataclasses.replace(cfg, env_config={**cfg.env_config, key: other}).content_hash() != cfg.content_hash()
+        was = getattr(cfg, section)
+        now = {**was, key: other} if isinstance(was, dict) else dataclasses.replace(was, **{key: other})
+        assert dataclasses.replace(cfg, **{section: now}).content_hash() != cfg.content_hash()
 
 
 @pytest.mark.parametrize("name", sorted(RESOLVED))

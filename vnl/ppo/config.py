@@ -61,6 +61,9 @@ class PPOConfig:
     gae_lambda: float = 0.95
     clipping_epsilon: float = 0.3
     reward_scaling: float = 10.0
+    # batch: the minibatch's advantages less their mean, over their std (Brax's); task: a suite's
+    # tasks each by their own (vnl.ppo.losses); none: as computed.
+    normalize_advantage: Literal["batch", "task", "none"] = "batch"
     normalize_observations: bool = True
     max_grad_norm: float | None = None
     action_repeat: int = 1

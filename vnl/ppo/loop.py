@@ -46,7 +46,7 @@ from vnl.envs import levels as levels_lib
 from vnl.envs import randomize
 from vnl.envs.wrappers import wrap_for_training
 from vnl.errors import VnlError
-from vnl.ppo import state_arrays, suite_loop
+from vnl.ppo import losses, state_arrays, suite_loop
 from vnl.ppo.config import RunSettings
 from vnl.ppo.networks import make_inference_fn, make_network
 from vnl.ppo.schedules import (
@@ -198,10 +198,15 @@ class PPOLoop:
         return network
 
     def _loss_fn(self) -> Any:
-        """Brax's PPO loss with the run's hyperparameters: loss(params, normalizer, data, key)."""
+        """Brax's PPO loss with the run's hyperparameters: loss(params, normalizer, data, key); with
+        `ppo.normalize_advantage=task`, vnl's (`vnl.ppo.losses`), a suite's tasks normalised apart."""
+        if self.config.ppo.normalize_advantage == "task":
+            groups = suite_loop.task_groups(self.task_env)
+            settings = self._loss_settings()
+            return functools.partial(losses.ppo_loss, ppo_network=self.network, groups_of=groups, **settings)
         return functools.partial(ppo_losses.compute_ppo_loss, ppo_network=self.network, **self._loss_settings())
 
-    def _loss_settings(self) -> dict[str, float]:
+    def _loss_settings(self) -> dict[str, Any]:
         """The PPO loss's hyperparameters from the config (the feed-forward and recurrent losses')."""
         p = self.config.ppo
         return {
@@ -210,6 +215,7 @@ class PPOLoop:
             "reward_scaling": p.reward_scaling,
             "gae_lambda": p.gae_lambda,
             "clipping_epsilon": p.clipping_epsilon,
+            "normalize_advantage": p.normalize_advantage != "none",
         }
 
     def _make_evaluator(self, eval_env: Any, num_eval_envs: int, episode_length: int) -> Any:

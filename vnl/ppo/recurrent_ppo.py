@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import functools
 import time
+from collections.abc import Callable
 from typing import Any
 
 import jax
@@ -32,10 +33,12 @@ from brax.training import types as brax_types
 from brax.training.agents.ppo import losses as ppo_losses
 from brax.training.agents.ppo.losses import compute_gae
 
+from vnl.ppo import suite_loop
 from vnl.ppo.intention import NOISE, kl_divergence
 from vnl.ppo.intention_core import latent_draw
 from vnl.ppo.intention_ppo import IntentionPPOLoop
 from vnl.ppo.loop import PPOLoop, TrainingState
+from vnl.ppo.losses import normalize_advantages
 from vnl.ppo.recurrent import RecurrentPPONetworks, make_recurrent_networks
 from vnl.ppo.sac import SACLoop
 
@@ -104,10 +107,13 @@ def recurrent_ppo_loss(
     gae_lambda: float,
     clipping_epsilon: float,
     kl_weight: float | None = None,
+    normalize_advantage: bool = True,
+    groups_of: Callable[[jax.Array], jax.Array] | None = None,
 ) -> tuple[jax.Array, dict[str, jax.Array]]:
     """Brax's PPO loss on unrolls `data` (leading axes (B, T)), the networks re-run over time from
     each unroll's first stored core state with the stored resets (and an intention network at its
-    stored latent draws, plus `kl_weight` × the latent's KL divergence from N(0, I))."""
+    stored latent draws, plus `kl_weight` × the latent's KL divergence from N(0, I)); the advantages
+    normalised as `vnl.ppo.losses.ppo_loss` does."""
     dist = networks.parametric_action_distribution
     data = jax.tree.map(lambda x: jp.swapaxes(x, 0, 1), data)  # time first: (T, B, ...)
     core = data.extras["core"]
@@ -137,7 +143,8 @@ def recurrent_ppo_loss(
         lambda_=gae_lambda,
         discount=discounting,
     )
-    advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
+    if normalize_advantage:
+        advantages = normalize_advantages(advantages, None if groups_of is None else groups_of(data.observation))
     rho = jp.exp(target_log_probs - behaviour_log_probs)
     clipped = jp.clip(rho, 1 - clipping_epsilon, 1 + clipping_epsilon)
     policy_loss = -jp.mean(jp.minimum(rho * advantages, clipped * advantages))
@@ -225,6 +232,8 @@ class RecurrentPPOLoop(PPOLoop):
     def _loss_fn(self) -> Any:
         net = self.config.network
         kl = {"kl_weight": net.kl_weight} if net.architecture == "intention" else {}
+        if self.config.ppo.normalize_advantage == "task":
+            kl["groups_of"] = suite_loop.task_groups(self.task_env)
         return functools.partial(recurrent_ppo_loss, networks=self.network, **self._loss_settings(), **kl)
 
     def _make_evaluator(self, eval_env: Any, num_eval_envs: int, episode_length: int) -> RecurrentEvaluator:

@@ -9,7 +9,7 @@ from typing import Any
 import jax
 import numpy as np
 
-from vnl.envs.suite import SuiteEnv, SuiteWrapper, split_counts
+from vnl.envs.suite import TASK_BLOCK, SuiteEnv, SuiteWrapper, split_counts
 from vnl.envs.wrappers import wrap_for_training
 from vnl.errors import VnlError
 
@@ -33,6 +33,16 @@ def check(env: SuiteEnv, config: Any, per_device: int) -> None:
         )
     if config.randomize.enabled:
         raise VnlError("randomize: a suite's members cannot be randomized yet; set randomize.enabled=false")
+
+
+def task_groups(env: Any) -> Callable[[jax.Array], jax.Array]:
+    """For `ppo.normalize_advantage=task`: a function from a batch of the suite's raw observations
+    (..., W) to their one-hot task block (..., K), the layout's last K entries (`TASK_BLOCK`)."""
+    if not is_suite(env):
+        raise VnlError("ppo.normalize_advantage=task is per task of a suite, and this env is one task; use batch")
+    name, k = env.observation_layout()[-1]
+    assert name == TASK_BLOCK, name
+    return lambda observation: observation[..., -k:]
 
 
 def training_env(env: SuiteEnv, config: Any) -> SuiteWrapper:

@@ -200,6 +200,8 @@ class TrainConfig:
             self._validate_levels(env_config)
         if isinstance(env_config, SuiteConfig):
             self._validate_suite(env_config)
+        elif self.ppo.normalize_advantage == "task":
+            raise VnlError(f"ppo.normalize_advantage=task is per task of a suite; {self.env} is one task: use batch")
         if self.decoder.run is not None:
             self._validate_decoder()
         if self.network.architecture == "intention":
