@@ -203,7 +203,8 @@ task): no cpu row changed; gpu and tiny rows gained the rules and cameras the cp
 2026-12-01: the bowls (and the suites that hold one) gained `spawn_distance: 0.0` (the centre).
 2026-12-02: the walker tasks gained `new_episode_on_reset` (false; maze forage and imitation true,
 as they redrew their episodes before).
-2026-12-02: every preset gained `ppo.normalize_advantage: batch` (Brax's, as before)."""
+2026-12-02: every preset gained `ppo.normalize_advantage: batch` (Brax's, as before).
+2026-12-02: rodent_run_gaps_vision (new: the corridor seen through the rat's camera)."""
 
 
 def test_the_env_fields_added_since_leave_a_configs_hash_as_it_was_before_them():

@@ -198,7 +198,8 @@ def test_the_default_video_camera_frames_the_animal(name, impl):
 # A variant whose world is another's, model for model (rodent_maze_forage_upright: the maze's task
 # code with the fall rules, vnl.tasks.falls, which read the root's orientation): its C rollout runs them.
 MJX_SAME_AS = {"rodent_two_touch": "rodent_run"}
-MJX_SAME_MODEL = {"rodent_maze_forage_upright": "rodent_maze_forage"}
+# (rodent_run_gaps_vision: the corridor's task code without the ground scan.)
+MJX_SAME_MODEL = {"rodent_maze_forage_upright": "rodent_maze_forage", "rodent_run_gaps_vision": "rodent_run_gaps"}
 
 
 @pytest.mark.parametrize(

@@ -31,19 +31,20 @@ def _camera(vision: VisionConfig) -> dict:
 
 @pytest.mark.parametrize("env", ENVS)
 def test_an_env_name_is_one_task_under_every_preset_and_in_make(env):
-    made = vnl.make(env, impl="c")
+    seeing = train_config.build(env, "cpu").vision.enabled  # rodent_run_gaps_vision: under every preset
+    made = vnl.make(env, impl="c", vision=seeing)
     task = _rules(config_lib.to_dict(made.config))
     camera = _camera(config_lib.from_dict(VisionConfig, registry.vision_defaults(env)))
     sizes = {}
     for preset in presets.names():
         config = train_config.build(env, preset)
         assert _rules(config_lib.to_dict(config.resolved_env_config())) == task, preset
-        assert _camera(config.vision) == camera, preset
+        assert _camera(config.vision) == camera and config.vision.enabled == seeing, preset
         # The env it trains (a curriculum's first stage), on C physics: built in milliseconds.
         first = Worlds(train_config.build(env, preset, file_values={"env_config": {"impl": "c", "threads": 1}}))
         built = first.env(0)
-        sizes[preset] = (built.observation_size, built.action_size)
-    assert set(sizes.values()) == {(made.observation_size, made.action_size)}, sizes
+        sizes[preset] = (str(built.observation_size), built.action_size)
+    assert set(sizes.values()) == {(str(made.observation_size), made.action_size)}, sizes
 
 
 def test_a_preset_that_sets_a_task_rule_is_refused(tmp_path, monkeypatch):

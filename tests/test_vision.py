@@ -1,5 +1,6 @@
 """The in-graph camera against MuJoCo's own renderer, and its dependence on the state."""
 
+import dataclasses
 import functools
 
 import jax
@@ -157,6 +158,24 @@ def test_rodent_egocentric_camera_sees_past_its_own_head_as_mujoco_does():
     assert_matches(depth, geom, ref_depth, ref_geom, min_agreement=0.95)
     names = {mujoco.mj_id2name(env.mj_model, mujoco.mjtObj.mjOBJ_GEOM, i) for i in np.unique(np.asarray(geom))}
     assert any(n and n.startswith("platform") for n in names) and not any(n and "skull" in n for n in names)
+
+
+def test_the_rat_that_sees_has_its_camera_on_under_every_preset_and_no_ground_scan():
+    """`rodent_run_gaps_vision` is the corridor with the rat's egocentric camera (16x16 depth) on
+    under every preset, in place of the blind rat's ground scan; the rest of its observation and
+    its rules are `rodent_run_gaps`'."""
+    from vnl.train import config as train_config
+
+    blind, seeing = vnl.make("rodent_run_gaps", impl="c"), vnl.make("rodent_run_gaps_vision", impl="c")
+    blind_layout = dict(blind.observation_layout())
+    assert blind_layout.pop("ground_ahead") == 12 and dict(seeing.observation_layout()) == blind_layout
+    assert dataclasses.replace(seeing.config, ground_scan=blind.config.ground_scan) == blind.config
+    for preset in ("cpu", "gpu", "tiny"):
+        config = train_config.build("rodent_run_gaps_vision", preset)
+        assert config.vision.enabled and config.network.cnn_pool == "spatial_softmax", preset
+        vision = (config.vision.camera, config.vision.mode, config.vision.width, config.vision.height)
+        assert vision == ("walker/egocentric", "depth", 16, 16), preset
+    assert not train_config.build("rodent_run_gaps", "cpu").vision.enabled
 
 
 @functools.cache

@@ -55,6 +55,13 @@ _REGISTRY: dict[str, Entry] = {
         run_gaps.RODENT_RUN_GAPS,
         "The rat runs at 1 m/s through a corridor of platforms and gaps redrawn every episode.",
     ),
+    "rodent_run_gaps_vision": Entry(
+        run_gaps.RunGaps,
+        run_gaps.RODENT_RUN_GAPS_VISION,
+        "rodent_run_gaps seen through the rat's egocentric camera (16x16 depth) instead of a ground scan.",
+        # Its egocentric camera, a small depth image, as the ant's: docs/experiments/vision-gaps.md
+        vision={"camera": "walker/egocentric", "mode": "depth", "width": 16, "height": 16, "depth_max": 4.0},
+    ),
     "rodent_escape_bowl": Entry(
         escape_bowl.EscapeBowl,
         escape_bowl.RODENT_ESCAPE_BOWL,

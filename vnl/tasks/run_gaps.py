@@ -145,6 +145,10 @@ bonus, fail below -0.3 m) with what a blind rat needs and dm_control's rat gets 
 a compass (`heading`), the corridor's axis and offset (`corridor`), a ground scan ahead
 (`ground_ahead`), and an end to episodes beyond 45° of tilt (it learned to wriggle forward lying
 down). docs/reference/envs/rodent_run_gaps.md lists the differences."""
+RODENT_RUN_GAPS_VISION = dataclasses.replace(RODENT_RUN_GAPS, ground_scan=())
+"""`rodent_run_gaps_vision`: `rodent_run_gaps` without the ground scan, for a rat that sees the gaps
+through its egocentric camera (the seed notebooks' setup; its camera: vnl/envs/registry.py). The
+compass and the corridor's axis stay: docs/experiments/vision-gaps.md."""
 ANT_RUN_GAPS = RunGapsConfig(
     walker="ant",
     physics_timestep=0.01,
