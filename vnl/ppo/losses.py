@@ -56,13 +56,39 @@ def ppo_loss(
     """Brax's PPO loss (`compute_ppo_loss`, value coefficient 0.5) on `data` (leading axes (B, T))
     with the advantages normalised per group: `groups_of(observation)` gives each step's one-hot
     (T, B, K) from its raw observation (None: one group, Brax's). Returns (loss, Brax's metrics)."""
-    dist = ppo_network.parametric_action_distribution
     data = jax.tree.map(lambda x: jp.swapaxes(x, 0, 1), data)  # time first: (T, B, ...)
     logits = ppo_network.policy_network.apply(normalizer_params, params.policy, data.observation)
     baseline = ppo_network.value_network.apply(normalizer_params, params.value, data.observation)
     last = jax.tree.map(lambda x: x[-1], data.next_observation)
     bootstrap_value = ppo_network.value_network.apply(normalizer_params, params.value, last)
+    settings = {"entropy_cost": entropy_cost, "discounting": discounting, "reward_scaling": reward_scaling}
+    settings |= {"gae_lambda": gae_lambda, "clipping_epsilon": clipping_epsilon}
+    groups = groups_of(data.observation) if normalize_advantage and groups_of is not None else None
+    return ppo_terms(
+        ppo_network.parametric_action_distribution, logits, baseline, bootstrap_value, data, rng,
+        normalize_advantage=normalize_advantage, groups=groups, **settings,
+    )  # fmt: skip
 
+
+def ppo_terms(
+    dist: Any,
+    logits: jax.Array,
+    baseline: jax.Array,
+    bootstrap_value: jax.Array,
+    data: brax_types.Transition,
+    rng: jax.Array,
+    entropy_cost: float,
+    discounting: float,
+    reward_scaling: float,
+    gae_lambda: float,
+    clipping_epsilon: float,
+    normalize_advantage: bool = True,
+    groups: jax.Array | None = None,
+) -> tuple[jax.Array, dict[str, jax.Array]]:
+    """Brax's PPO loss from the networks' outputs on time-major `data` ((T, B, ...)): `logits` and
+    `baseline` (T, B, ...) at its steps, `bootstrap_value` (B,) after the last; the GAE, the
+    advantages normalised (per group of `groups`, (T, B, K), if given), the clipped surrogate, the
+    value loss (coefficient 0.5) and the entropy bonus. Returns (loss, Brax's metrics)."""
     truncation = data.extras["state_extras"]["truncation"]
     vs, advantages = compute_gae(
         truncation=truncation,
@@ -74,7 +100,7 @@ def ppo_loss(
         discount=discounting,
     )
     if normalize_advantage:
-        advantages = normalize_advantages(advantages, None if groups_of is None else groups_of(data.observation))
+        advantages = normalize_advantages(advantages, groups)
     behaviour = data.extras["policy_extras"]
     rho = jp.exp(dist.log_prob(logits, behaviour["raw_action"]) - behaviour["log_prob"])
     clipped = jp.clip(rho, 1 - clipping_epsilon, 1 + clipping_epsilon)
@@ -83,7 +109,7 @@ def ppo_loss(
     entropy_loss = entropy_cost * -jp.mean(dist.entropy(logits, rng))
     total_loss = policy_loss + v_loss + entropy_loss
     new = dist.create_dist(logits)
-    old = dist.create_dist(data.extras["policy_extras"]["distribution_params"])
+    old = dist.create_dist(behaviour["distribution_params"])
     return total_loss, {
         "total_loss": total_loss,
         "policy_loss": policy_loss,

@@ -31,14 +31,13 @@ import numpy as np
 from brax import envs as brax_envs
 from brax.training import types as brax_types
 from brax.training.agents.ppo import losses as ppo_losses
-from brax.training.agents.ppo.losses import compute_gae
 
 from vnl.ppo import suite_loop
 from vnl.ppo.intention import NOISE, kl_divergence
 from vnl.ppo.intention_core import latent_draw
 from vnl.ppo.intention_ppo import IntentionPPOLoop
 from vnl.ppo.loop import PPOLoop, TrainingState
-from vnl.ppo.losses import normalize_advantages
+from vnl.ppo.losses import ppo_terms
 from vnl.ppo.recurrent import RecurrentPPONetworks, make_recurrent_networks
 from vnl.ppo.sac import SACLoop
 
@@ -129,45 +128,18 @@ def recurrent_ppo_loss(
         normalizer_params, params.policy, params.value, last, carry, 1 - data.discount[-1]
     )
 
-    rewards = data.reward * reward_scaling
-    truncation = data.extras["state_extras"]["truncation"]
-    termination = (1 - data.discount) * (1 - truncation)
-    target_log_probs = dist.log_prob(logits, data.extras["policy_extras"]["raw_action"])
-    behaviour_log_probs = data.extras["policy_extras"]["log_prob"]
-    vs, advantages = compute_gae(
-        truncation=truncation,
-        termination=termination,
-        rewards=rewards,
-        values=baseline,
-        bootstrap_value=bootstrap_value,
-        lambda_=gae_lambda,
-        discount=discounting,
-    )
-    if normalize_advantage:
-        advantages = normalize_advantages(advantages, None if groups_of is None else groups_of(data.observation))
-    rho = jp.exp(target_log_probs - behaviour_log_probs)
-    clipped = jp.clip(rho, 1 - clipping_epsilon, 1 + clipping_epsilon)
-    policy_loss = -jp.mean(jp.minimum(rho * advantages, clipped * advantages))
-    v_loss = jp.mean((vs - baseline) ** 2) * 0.5 * 0.5
-    entropy = jp.mean(dist.entropy(logits, rng))
-    entropy_loss = entropy_cost * -entropy
-    total_loss = policy_loss + v_loss + entropy_loss
-    extra: dict[str, jax.Array] = {}
+    groups = groups_of(data.observation) if normalize_advantage and groups_of is not None else None
+    total_loss, metrics = ppo_terms(
+        dist, logits, baseline, bootstrap_value, data, rng,
+        entropy_cost=entropy_cost, discounting=discounting, reward_scaling=reward_scaling, gae_lambda=gae_lambda,
+        clipping_epsilon=clipping_epsilon, normalize_advantage=normalize_advantage, groups=groups,
+    )  # fmt: skip
     if kl_weight is not None:
         mean, log_std = networks.posterior(normalizer_params, params.policy, data.observation)
-        extra["intention_kl"] = jp.mean(kl_divergence(mean, log_std))
-        total_loss = total_loss + kl_weight * extra["intention_kl"]
-    new_dist = dist.create_dist(logits)
-    old_dist = dist.create_dist(data.extras["policy_extras"]["distribution_params"])
-    return total_loss, {
-        "total_loss": total_loss,
-        "policy_loss": policy_loss,
-        "v_loss": v_loss,
-        "entropy_loss": entropy_loss,
-        "kl_mean": jp.mean(new_dist.kl_divergence(old_dist)),
-        "policy_dist_mean_std": jp.mean(new_dist.scale),
-        **extra,
-    }
+        metrics["intention_kl"] = jp.mean(kl_divergence(mean, log_std))
+        total_loss = total_loss + kl_weight * metrics["intention_kl"]
+        metrics["total_loss"] = total_loss
+    return total_loss, metrics
 
 
 class RecurrentEvaluator:
