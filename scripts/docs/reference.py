@@ -219,10 +219,19 @@ def _built(env: str, preset: str) -> Any:
     config = Worlds(train_config.build(env, preset)).config_of(0)
     key = repr((env, sorted((k, repr(v)) for k, v in config.env_config.items() if k not in ("impl", "threads"))))
     if key not in _LAYOUTS:
-        built = train_config.build(env, preset, file_values={"env_config": {"impl": "c", "threads": 1}})
+        # the state alone: a camera the presets turn on is stated beside it (env_markdown)
+        values = {"env_config": {"impl": "c", "threads": 1}, "vision": {"enabled": False}}
+        built = train_config.build(env, preset, file_values=values)
         e = Worlds(built).env(0)
         _LAYOUTS[key] = (e.observation_layout(), e)
     return _LAYOUTS[key]
+
+
+def _camera_on(env: str) -> bool:
+    """Whether `env`'s presets turn the camera on (`rodent_run_gaps_vision`: under every preset)."""
+    from vnl.train import config as train_config
+
+    return train_config.build(env, "cpu").vision.enabled
 
 
 def _layout_table(layout: list[tuple[str, int]]) -> list[str]:
@@ -269,6 +278,12 @@ def env_markdown(name: str) -> str:
     settings = ", ".join(f"`{k}: {v}`" for k, v in camera.items()) or "the defaults (the egocentric camera, 64x64 RGB)"
     if registry.is_suite(name):
         out += ["With `--vision`: not yet for a suite (its observation is its members' flat union).", ""]
+    elif _camera_on(name):
+        out += [
+            f"With `--vision`, on in every preset of this env, the policy also sees a camera: {settings} "
+            "(`--set vision.enabled=false`: the same task blind).",
+            "",
+        ]
     else:
         out += [
             f"With `--vision` (or `vnl.make({name!r}, vision=True)`) the policy also sees a camera: {settings}.",
