@@ -45,29 +45,21 @@ def ppo_loss(
     data: brax_types.Transition,
     rng: jax.Array,
     ppo_network: Any,
-    entropy_cost: float,
-    discounting: float,
-    reward_scaling: float,
-    gae_lambda: float,
-    clipping_epsilon: float,
-    normalize_advantage: bool = True,
     groups_of: Callable[[jax.Array], jax.Array] | None = None,
+    **settings: Any,
 ) -> tuple[jax.Array, dict[str, jax.Array]]:
     """Brax's PPO loss (`compute_ppo_loss`, value coefficient 0.5) on `data` (leading axes (B, T))
     with the advantages normalised per group: `groups_of(observation)` gives each step's one-hot
-    (T, B, K) from its raw observation (None: one group, Brax's). Returns (loss, Brax's metrics)."""
+    (T, B, K) from its raw observation (None: one group, Brax's). `settings`: `ppo_terms`'
+    hyperparameters. Returns (loss, Brax's metrics)."""
     data = jax.tree.map(lambda x: jp.swapaxes(x, 0, 1), data)  # time first: (T, B, ...)
     logits = ppo_network.policy_network.apply(normalizer_params, params.policy, data.observation)
     baseline = ppo_network.value_network.apply(normalizer_params, params.value, data.observation)
     last = jax.tree.map(lambda x: x[-1], data.next_observation)
     bootstrap_value = ppo_network.value_network.apply(normalizer_params, params.value, last)
-    settings = {"entropy_cost": entropy_cost, "discounting": discounting, "reward_scaling": reward_scaling}
-    settings |= {"gae_lambda": gae_lambda, "clipping_epsilon": clipping_epsilon}
-    groups = groups_of(data.observation) if normalize_advantage and groups_of is not None else None
-    return ppo_terms(
-        ppo_network.parametric_action_distribution, logits, baseline, bootstrap_value, data, rng,
-        normalize_advantage=normalize_advantage, groups=groups, **settings,
-    )  # fmt: skip
+    groups = None if groups_of is None else groups_of(data.observation)
+    dist = ppo_network.parametric_action_distribution
+    return ppo_terms(dist, logits, baseline, bootstrap_value, data, rng, groups=groups, **settings)
 
 
 def ppo_terms(

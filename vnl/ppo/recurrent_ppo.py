@@ -128,7 +128,7 @@ def recurrent_ppo_loss(
         normalizer_params, params.policy, params.value, last, carry, 1 - data.discount[-1]
     )
 
-    groups = groups_of(data.observation) if normalize_advantage and groups_of is not None else None
+    groups = None if groups_of is None else groups_of(data.observation)
     total_loss, metrics = ppo_terms(
         dist, logits, baseline, bootstrap_value, data, rng,
         entropy_cost=entropy_cost, discounting=discounting, reward_scaling=reward_scaling, gae_lambda=gae_lambda,
