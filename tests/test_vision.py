@@ -238,6 +238,25 @@ def test_ant_ground_camera_sees_the_gap_ahead_where_it_is():
     np.testing.assert_allclose(column[on_platform], t[on_platform], rtol=1e-3)
 
 
+def test_the_rats_ground_camera_spends_its_rows_on_the_floor_ahead():
+    # The rat's `walker/ground` is its egocentric camera (in the skull) pitched 25 degrees down,
+    # fovy 50: at a reset, the centre column of a 16x16 depth image sees the floor in every row but
+    # the top one, where the egocentric camera sees it in its lower half only; MuJoCo's renderer
+    # sees the same image.
+    env = vnl.make("rodent_run_gaps_vision")
+    d = corridor_episode(env, 3)
+    m = env.mj_model
+    ego, ground = m.camera("walker/egocentric").id, m.camera("walker/ground").id
+    assert m.cam_bodyid[ground] == m.cam_bodyid[ego] == m.body("walker/skull").id
+    np.testing.assert_allclose(d.cam_xpos[ground], d.cam_xpos[ego])
+    rows = {}
+    for name in ("walker/egocentric", "walker/ground"):
+        _, depth, geom = jax.jit(Camera(m, name, 16, 16).render)(mjx.put_data(m, d))
+        assert_matches(depth, geom, *reference(m, d, name, 16, 16), 0.95)
+        rows[name] = int((np.asarray(depth)[:, 8] < 4.0).sum())
+    assert rows["walker/ground"] >= 14 and rows["walker/egocentric"] <= 8, rows
+
+
 HFIELD_SCENE = """
 <mujoco>
   <asset><hfield name="h" nrow="7" ncol="9" size="1 0.8 0.4 0.2"/></asset>

@@ -23,7 +23,7 @@ from typing import Any
 
 from dm_control.locomotion.walkers import rodent as dmc_rodent
 
-from vnl.walkers.base import Walker, collide_with_arena_only, keep_contacts
+from vnl.walkers.base import Walker, add_ground_camera, collide_with_arena_only, keep_contacts
 
 ESSENTIAL_BODIES = frozenset(
     {"foot_L", "foot_R", "toe_L", "toe_R", "hand_L", "hand_R", "finger_L", "finger_R", "torso", "pelvis"}
@@ -48,7 +48,11 @@ def build(self_collision: bool = False, contacts: str = "essential", rigid_tail:
         collide_with_arena_only(model)
     if contacts == "essential":
         keep_contacts(model, set(ESSENTIAL_BODIES), ESSENTIAL_GEOMS)
-    # The rat ships its own cameras: back, side, side_alt, top (tracking) and egocentric.
+    # The rat ships its own cameras: back, side, side_alt, top (tracking) and egocentric; `ground`
+    # is its egocentric camera pitched 25 degrees down (the skull's frame is x forward, z up at
+    # rest), fovy 50: the floor from 7 cm ahead to the horizon, 3 degrees a row at 16x16.
+    # Why: docs/experiments/vision-gaps.md#the-rat-that-sees-2026-12-02
+    add_ground_camera(model.find("body", "skull"), pos=(0.01, 0.0, 0.005), pitch_deg=25.0, fovy=50.0)
     return Walker(
         name="rodent",
         mjcf_model=model,
