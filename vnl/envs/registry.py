@@ -53,7 +53,8 @@ _REGISTRY: dict[str, Entry] = {
     "rodent_run_gaps": Entry(
         run_gaps.RunGaps,
         run_gaps.RODENT_RUN_GAPS,
-        "The rat runs at 1 m/s through a corridor of platforms and gaps redrawn every episode.",
+        "The rat runs at 1 m/s through a corridor of random platforms and gaps (training replays each"
+        " env's first corridor unless env_config.new_episode_on_reset).",
     ),
     "rodent_run_gaps_vision": Entry(
         run_gaps.RunGaps,
