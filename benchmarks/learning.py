@@ -89,7 +89,7 @@ def task_of(env: str) -> str:
         return "imitate"
     if "maze_forage" in env:
         return "maze"
-    return "gaps" if env.endswith("run_gaps") else "bowl" if env.endswith("escape_bowl") else "run"
+    return "gaps" if "run_gaps" in env else "bowl" if env.endswith("escape_bowl") else "run"  # _vision too
 
 
 def train(run: Path, env: str, seed: int, args: argparse.Namespace) -> None:
