@@ -52,7 +52,8 @@ def build(self_collision: bool = False, contacts: str = "essential", rigid_tail:
     # is its egocentric camera pitched 25 degrees down (the skull's frame is x forward, z up at
     # rest), fovy 50: the floor from 7 cm ahead to the horizon, 3 degrees a row at 16x16.
     # Why: docs/experiments/vision-gaps.md#a-camera-pitched-at-the-floor-built-not-trained-yet
-    add_ground_camera(model.find("body", "skull"), pos=(0.01, 0.0, 0.005), pitch_deg=25.0, fovy=50.0)
+    egocentric = model.find("camera", "egocentric")
+    add_ground_camera(egocentric.parent, pos=tuple(egocentric.pos), pitch_deg=25.0, fovy=50.0)
     return Walker(
         name="rodent",
         mjcf_model=model,
